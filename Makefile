@@ -1,0 +1,34 @@
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: setup test lint demo bench report clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+test: lint
+	$(PY) -m pytest -q
+
+demo: $(STAMP)
+	$(VENV)/bin/panoptic-bench demo --out reports/demo
+
+bench: $(STAMP)
+	$(PY) benchmarks/run_all.py
+
+report: $(STAMP)
+	$(VENV)/bin/panoptic-bench demo --out reports/synthetic --report-only
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

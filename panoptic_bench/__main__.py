@@ -1,0 +1,3 @@
+from panoptic_bench.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,23 @@
+"""Shared test fixtures: the real data in ../shared/data (always present in CI)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """Root of ../shared/data; its absence is a failure, never a skip."""
+    assert SHARED_DATA.is_dir(), f"real test data missing: {SHARED_DATA}"
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def kitti_root(shared_data: Path) -> Path:
+    """SemanticKITTI-format root with sequences/00 (3 real labelled scans)."""
+    return shared_data / "semantickitti"
