@@ -1,0 +1,380 @@
+"""Typed DS-Net configuration: frozen dataclasses, validated, round-tripping through YAML.
+
+A configuration file is a YAML mapping with one section per dataclass below (``grid``,
+``model``, ``optim``, ``augment``, ``loss``, ``dynamic_shift``, ``inference``, ``data``).
+Every section and every key is optional (defaults are the paper's SemanticKITTI values), but
+an unknown key is an error that names the key and the file: a typo never silently falls back
+to a default. YAML is only the file format; values are numbers, booleans, lists of numbers and
+enum names.
+
+Example
+-------
+>>> cfg = DSNetConfig.from_dict({"optim": {"lr": 0.001}})
+>>> cfg.optim.lr
+0.001
+>>> DSNetConfig.from_dict(cfg.to_dict()) == cfg
+True
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from panoptic_bench.errors import InputError
+
+
+class DatasetFormat(enum.Enum):
+    """On-disk layout of a data root."""
+
+    SEMANTICKITTI = "semantickitti"
+    NUSCENES = "nuscenes"
+
+
+class Clusterer(enum.Enum):
+    """Heuristic clustering of regressed centres (names of ``panoptic_bench.baselines``)."""
+
+    MEANSHIFT = "meanshift"
+    BFS = "bfs"
+    DBSCAN = "dbscan"
+    HDBSCAN = "hdbscan"
+
+
+class ShiftKernel(enum.Enum):
+    """Dynamic-shifting kernel: candidate weighting (paper) or direct bandwidth regression."""
+
+    FLAT = "flat"
+    GAUSSIAN = "gaussian"
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """Cylindrical voxel grid: cells along (rho, phi, z) and the clipped ranges (m, degrees, m)."""
+
+    size: tuple[int, int, int] = (480, 360, 32)
+    rho_range: tuple[float, float] = (3.0, 50.0)
+    phi_range_deg: tuple[float, float] = (-180.0, 180.0)
+    z_range: tuple[float, float] = (-3.0, 1.5)
+
+    @property
+    def min_bound(self) -> tuple[float, float, float]:
+        """Lower corner (rho m, phi rad, z m)."""
+        return (self.rho_range[0], math.radians(self.phi_range_deg[0]), self.z_range[0])
+
+    @property
+    def max_bound(self) -> tuple[float, float, float]:
+        """Upper corner (rho m, phi rad, z m)."""
+        return (self.rho_range[1], math.radians(self.phi_range_deg[1]), self.z_range[1])
+
+    def validate(self) -> list[str]:
+        problems = [f"grid.size must be positive, got {self.size}"] if min(self.size) < 1 else []
+        for name in ("rho_range", "phi_range_deg", "z_range"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                problems.append(f"grid.{name} must be increasing, got {[lo, hi]}")
+        return problems
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Backbone width and head sizes (the class count comes from the data)."""
+
+    init_size: int = 32
+    point_feature_dim: int = 256
+    voxel_feature_dim: int = 16
+    offset_hidden: int = 128
+
+    def validate(self) -> list[str]:
+        return [
+            f"model.{f.name} must be >= 1, got {getattr(self, f.name)}"
+            for f in dataclasses.fields(self)
+            if getattr(self, f.name) < 1
+        ]
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """Adam optimisation, epochs per training stage, batch size, seed."""
+
+    lr: float = 0.002
+    weight_decay: float = 0.0
+    batch_size: int = 2
+    epochs_semantic: int = 40
+    epochs_offset: int = 40
+    epochs_ds: int = 10
+    seed: int = 0
+    num_workers: int = 0
+    val_every: int = 1
+
+    def validate(self) -> list[str]:
+        problems = []
+        if not self.lr > 0:
+            problems.append(f"optim.lr must be > 0, got {self.lr}")
+        if self.batch_size < 1:
+            problems.append(f"optim.batch_size must be >= 1, got {self.batch_size}")
+        for name in ("epochs_semantic", "epochs_offset", "epochs_ds", "num_workers"):
+            if getattr(self, name) < 0:
+                problems.append(f"optim.{name} must be >= 0")
+        return problems
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """Training augmentation (Cylinder3D / DS-Net defaults)."""
+
+    rotate: bool = True
+    flip: bool = True
+    scale_range: tuple[float, float] = (0.95, 1.05)
+    translate_std: tuple[float, float, float] = (0.1, 0.1, 0.1)
+
+    def validate(self) -> list[str]:
+        lo, hi = self.scale_range
+        return [] if 0 < lo <= hi else [f"augment.scale_range must be 0 < lo <= hi, got {[lo, hi]}"]
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Loss weights: semantic (CE + Lovász), offset L1, dynamic shifting per iteration."""
+
+    ce: float = 1.0
+    lovasz: float = 1.0
+    offset: float = 1.0
+    class_weight_power: float = 0.5
+    ds_iteration_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+
+    def validate(self) -> list[str]:
+        names = ("ce", "lovasz", "offset")
+        return [f"loss.{n} must be >= 0" for n in names if getattr(self, n) < 0]
+
+
+@dataclass(frozen=True)
+class DynamicShiftConfig:
+    """Dynamic shifting module (paper §3.2, appendix §4)."""
+
+    bandwidths: tuple[float, ...] = (0.2, 1.7, 3.2)
+    iterations: int = 4
+    kernel: ShiftKernel = ShiftKernel.FLAT
+    max_seeds: int = 10000
+    freeze_backbone: bool = True
+
+    def validate(self) -> list[str]:
+        problems = []
+        if not self.bandwidths or min(self.bandwidths) <= 0:
+            problems.append(f"dynamic_shift.bandwidths must be positive, got {self.bandwidths}")
+        if self.iterations < 1:
+            problems.append("dynamic_shift.iterations must be >= 1")
+        if self.max_seeds < 1:
+            problems.append("dynamic_shift.max_seeds must be >= 1")
+        return problems
+
+
+@dataclass(frozen=True)
+class InferenceConfig:
+    """Clustering of regressed centres at inference and the panoptic assembly."""
+
+    clusterer: Clusterer = Clusterer.MEANSHIFT
+    bandwidth: float = 1.2
+    ds_clusterer: Clusterer = Clusterer.MEANSHIFT
+    ds_bandwidth: float = 0.65
+    min_points: int = 50
+    fusion: bool = True
+
+    def validate(self) -> list[str]:
+        problems = []
+        for name in ("bandwidth", "ds_bandwidth"):
+            if not getattr(self, name) > 0:
+                problems.append(f"inference.{name} must be > 0")
+        if self.min_points < 1:
+            problems.append("inference.min_points must be >= 1")
+        return problems
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Which dataset layout, which splits; SemanticKITTI sequences or nuScenes split names.
+
+    ``num_classes`` (train ids including the ignored id 0) must match the dataset's class map;
+    it is checked when the data is opened. ``max_*_samples`` = 0 means every sample.
+    """
+
+    format: DatasetFormat = DatasetFormat.SEMANTICKITTI
+    num_classes: int = 20
+    train_split: str = "train"
+    val_split: str = "valid"
+    train_sequences: tuple[str, ...] = ()
+    val_sequences: tuple[str, ...] = ()
+    nuscenes_version: str = "v1.0-trainval"
+    max_train_samples: int = 0
+    max_val_samples: int = 0
+
+    def validate(self) -> list[str]:
+        return [] if self.num_classes >= 2 else ["data.num_classes must be >= 2"]
+
+
+SECTIONS: dict[str, type] = {
+    "grid": GridConfig,
+    "model": ModelConfig,
+    "optim": OptimConfig,
+    "augment": AugmentConfig,
+    "loss": LossConfig,
+    "dynamic_shift": DynamicShiftConfig,
+    "inference": InferenceConfig,
+    "data": DataConfig,
+}
+
+
+@dataclass(frozen=True)
+class DSNetConfig:
+    """The whole DS-Net configuration: one frozen dataclass per section."""
+
+    grid: GridConfig = field(default_factory=GridConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    dynamic_shift: DynamicShiftConfig = field(default_factory=DynamicShiftConfig)
+    inference: InferenceConfig = field(default_factory=InferenceConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+
+    @classmethod
+    def from_dict(cls, mapping: dict[str, Any], source: str | Path | None = None) -> DSNetConfig:
+        """Build a config from a nested mapping.
+
+        Parameters
+        ----------
+        mapping : dict
+            ``{section: {key: value}}``; missing sections/keys take defaults.
+        source : str or Path, optional
+            File the mapping came from, named in error messages.
+
+        Raises
+        ------
+        InputError
+            Unknown section or key, or a value of the wrong type or out of range.
+        """
+        if not isinstance(mapping, dict):
+            raise InputError("a DS-Net config must be a mapping of sections", source)
+        unknown = sorted(set(mapping) - set(SECTIONS))
+        if unknown:
+            raise InputError(
+                f"unknown config section {unknown[0]!r}; known sections: {', '.join(SECTIONS)}",
+                source,
+            )
+        sections = {
+            name: _section_from_dict(kind, name, mapping.get(name) or {}, source)
+            for name, kind in SECTIONS.items()
+        }
+        cfg = cls(**sections)
+        problems = [p for s in sections.values() for p in s.validate()]
+        if problems:
+            raise InputError("invalid config: " + "; ".join(problems), source)
+        return cfg
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Plain nested dict of builtins (lists, numbers, strings), ready for YAML/JSON."""
+        return {name: _section_to_dict(getattr(self, name)) for name in SECTIONS}
+
+    def replace(self, **sections: Any) -> DSNetConfig:
+        """Return a copy with some sections' fields replaced: ``replace(optim={"lr": 1e-3})``."""
+        new = {}
+        for name, changes in sections.items():
+            if name not in SECTIONS:
+                raise KeyError(f"unknown config section {name!r}")
+            new[name] = dataclasses.replace(getattr(self, name), **changes)
+        return dataclasses.replace(self, **new)
+
+
+def load_config(path: str | Path) -> DSNetConfig:
+    """Read a YAML config file; errors name the file and the offending key."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("config file not found; see configs/dsnet_*.yaml", path)
+    try:
+        mapping = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except yaml.YAMLError as exc:
+        raise InputError(f"not valid YAML ({exc})", path) from None
+    return DSNetConfig.from_dict(mapping, source=path)
+
+
+def save_config(cfg: DSNetConfig, path: str | Path) -> None:
+    """Write ``cfg`` as YAML (atomically)."""
+    import yaml
+
+    from panoptic_bench.io import write_text
+
+    write_text(path, yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+
+
+def _section_from_dict(kind: type, name: str, values: Any, source: str | Path | None) -> Any:
+    if not isinstance(values, dict):
+        raise InputError(f"config section {name!r} must be a mapping", source)
+    fields = {f.name: f for f in dataclasses.fields(kind)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise InputError(
+            f"unknown config key '{name}.{unknown[0]}'; known keys: {', '.join(fields)}", source
+        )
+    hints = typing.get_type_hints(kind)
+    kwargs = {
+        key: _coerce(hints[key], value, f"{name}.{key}", source) for key, value in values.items()
+    }
+    return kind(**kwargs)
+
+
+def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
+    """Check ``value`` against the annotation ``hint``; lists become tuples, names become enums."""
+    origin = typing.get_origin(hint)
+    if isinstance(hint, type) and issubclass(hint, enum.Enum):
+        try:
+            return hint(value)
+        except ValueError:
+            names = ", ".join(m.value for m in hint)
+            raise InputError(f"{key} must be one of {names}, got {value!r}", source) from None
+    if origin is tuple:
+        args = typing.get_args(hint)
+        if not isinstance(value, list | tuple):
+            raise InputError(f"{key} must be a list, got {value!r}", source)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(args[0], v, key, source) for v in value)
+        if len(value) != len(args):
+            raise InputError(f"{key} must have {len(args)} entries, got {len(value)}", source)
+        return tuple(_coerce(a, v, key, source) for a, v in zip(args, value))
+    if origin in (typing.Union, types.UnionType):
+        raise TypeError(f"unsupported annotation for {key}")  # pragma: no cover
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise InputError(f"{key} must be true or false, got {value!r}", source)
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"{key} must be an integer, got {value!r}", source)
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(f"{key} must be a number, got {value!r}", source)
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise InputError(f"{key} must be a quoted string, got {value!r}", source)
+        return value
+    raise TypeError(f"unsupported annotation {hint!r} for {key}")  # pragma: no cover
+
+
+def _section_to_dict(section: Any) -> dict[str, Any]:
+    return {f.name: _plain(getattr(section, f.name)) for f in dataclasses.fields(section)}
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    return value
