@@ -1,0 +1,209 @@
+"""Functional sparse convolutions: gather -> per-offset matmul -> ``index_add_``.
+
+Weights have shape ``(n_offsets, in_channels, out_channels)`` with offsets in row-major kernel
+order, i.e. ``weight[k] == dense_weight[:, :, dx, dy, dz].T`` for ``k = (dx * ky + dy) * kz + dz``
+of a ``torch.nn.functional.conv3d`` weight of shape (out, in, kx, ky, kz).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from panoptic_bench.dsnet.sparse.kmap import (
+    KernelMap,
+    downsample_map,
+    find_downsample,
+    submanifold_map,
+)
+from panoptic_bench.dsnet.sparse.tensor import SparseTensor, _as_triple
+
+
+class _MapConv(torch.autograd.Function):
+    """``out[o] = sum over pairs (i, o, k) of features[i] @ weight[k]`` with explicit backward.
+
+    The backward recomputes the gather instead of saving the (n_pairs, C) gathered matrix.
+    """
+
+    @staticmethod
+    def forward(ctx, features, weight, in_idx, out_idx, splits, identity, n_out):
+        n_off = weight.shape[0]
+        if identity is not None:
+            out = features @ weight[identity]
+        else:
+            out = features.new_zeros((n_out, weight.shape[2]))
+        if in_idx.numel():
+            gathered = features.index_select(0, in_idx)
+            prod = features.new_empty((in_idx.numel(), weight.shape[2]))
+            for k in range(n_off):
+                s, e = splits[k], splits[k + 1]
+                if e > s:
+                    torch.mm(gathered[s:e], weight[k], out=prod[s:e])
+            out.index_add_(0, out_idx, prod)
+        ctx.save_for_backward(features, weight, in_idx, out_idx)
+        ctx.splits, ctx.identity = splits, identity
+        return out
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_out):
+        features, weight, in_idx, out_idx = ctx.saved_tensors
+        splits, identity = ctx.splits, ctx.identity
+        grad_out = grad_out.contiguous()
+        need_f, need_w = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        grad_f = grad_w = None
+        go = grad_out.index_select(0, out_idx) if in_idx.numel() else None
+        if need_w:
+            grad_w = torch.zeros_like(weight)
+            if identity is not None:
+                torch.mm(features.t(), grad_out, out=grad_w[identity])
+            if go is not None:
+                gathered = features.index_select(0, in_idx)
+                for k in range(weight.shape[0]):
+                    s, e = splits[k], splits[k + 1]
+                    if e > s:
+                        torch.mm(gathered[s:e].t(), go[s:e], out=grad_w[k])
+        if need_f:
+            if identity is not None:
+                grad_f = grad_out @ weight[identity].t()
+            else:
+                grad_f = features.new_zeros(features.shape)
+            if go is not None:
+                gi = features.new_empty((in_idx.numel(), weight.shape[1]))
+                for k in range(weight.shape[0]):
+                    s, e = splits[k], splits[k + 1]
+                    if e > s:
+                        torch.mm(go[s:e], weight[k].t(), out=gi[s:e])
+                grad_f.index_add_(0, in_idx, gi)
+        return grad_f, grad_w, None, None, None, None, None
+
+
+def apply_kernel_map(
+    features: torch.Tensor,
+    weight: torch.Tensor,
+    kmap: KernelMap,
+    bias: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Run a convolution given its kernel map.
+
+    Parameters
+    ----------
+    features : torch.Tensor
+        Array of shape (n_in, in_channels), float.
+    weight : torch.Tensor
+        Array of shape (n_offsets, in_channels, out_channels), float.
+    kmap : KernelMap
+        Pairs of the convolution (``len(kmap.splits) == n_offsets + 1``).
+    bias : torch.Tensor, optional
+        Array of shape (out_channels,).
+
+    Returns
+    -------
+    torch.Tensor
+        Array of shape (kmap.n_out, out_channels).
+    """
+    if len(kmap.splits) != weight.shape[0] + 1:
+        raise ValueError(f"weight has {weight.shape[0]} offsets, map {len(kmap.splits) - 1}")
+    if features.shape[1] != weight.shape[1]:
+        raise ValueError(f"features have {features.shape[1]} channels, weight {weight.shape[1]}")
+    out = _MapConv.apply(
+        features.contiguous(),
+        weight.to(features.dtype),
+        kmap.in_idx,
+        kmap.out_idx,
+        kmap.splits,
+        kmap.identity,
+        kmap.n_out,
+    )
+    return out if bias is None else out + bias
+
+
+def submanifold_conv3d(
+    x: SparseTensor,
+    weight: torch.Tensor,
+    kernel_size: int | tuple[int, int, int],
+    bias: torch.Tensor | None = None,
+) -> SparseTensor:
+    """Submanifold convolution: a dense ``conv3d`` (odd kernel, 'same' padding) at ``x``'s sites.
+
+    Parameters
+    ----------
+    x : SparseTensor
+        Input with ``in_channels`` features.
+    weight : torch.Tensor
+        Array of shape (kx * ky * kz, in_channels, out_channels).
+    kernel_size : int or tuple of 3 odd ints
+    bias : torch.Tensor, optional
+        Array of shape (out_channels,).
+
+    Returns
+    -------
+    SparseTensor
+        Same sites and cache as ``x``, ``out_channels`` features.
+    """
+    kmap = submanifold_map(x, _as_triple(kernel_size, "kernel_size"))
+    return x.replace_features(apply_kernel_map(x.features, weight, kmap, bias))
+
+
+def sparse_conv3d(
+    x: SparseTensor,
+    weight: torch.Tensor,
+    kernel_size: int | tuple[int, int, int],
+    stride: int | tuple[int, int, int],
+    padding: int | tuple[int, int, int] = 0,
+    bias: torch.Tensor | None = None,
+) -> SparseTensor:
+    """Strided sparse convolution (spconv ``SparseConv3d`` output sites).
+
+    Equals ``conv3d(dense(x), stride=stride, padding=padding)`` at every output site ``o`` whose
+    receptive field ``o * stride - padding + [0, k)`` contains an active input site.
+
+    Returns
+    -------
+    SparseTensor
+        New sites on the grid ``(n + 2p - k) // s + 1``, stride ``x.stride * stride``, shared
+        cache.
+    """
+    ks, st, pad = (
+        _as_triple(v, n)
+        for v, n in ((kernel_size, "kernel_size"), (stride, "stride"), (padding, "padding"))
+    )
+    entry = downsample_map(x, ks, st, pad)
+    feats = apply_kernel_map(x.features, weight, entry.kmap, bias)
+    out_stride = tuple(a * b for a, b in zip(x.stride, st))
+    return SparseTensor(feats, entry.out_coords, entry.out_shape, out_stride, x.cache)
+
+
+def inverse_conv3d(
+    x: SparseTensor,
+    weight: torch.Tensor,
+    kernel_size: int | tuple[int, int, int],
+    stride: int | tuple[int, int, int],
+    padding: int | tuple[int, int, int] = 0,
+    bias: torch.Tensor | None = None,
+) -> SparseTensor:
+    """Inverse of an earlier :func:`sparse_conv3d`: back to its input sites, reusing its map.
+
+    Equals ``conv_transpose3d(dense(x), stride=stride, padding=padding)`` at the input sites of
+    the strided convolution (same kernel, stride, padding) that produced ``x``'s sites.
+    """
+    ks, st, pad = (
+        _as_triple(v, n)
+        for v, n in ((kernel_size, "kernel_size"), (stride, "stride"), (padding, "padding"))
+    )
+    entry = find_downsample(x, ks, st, pad)
+    kmap = entry.kmap.transposed(entry.in_coords.shape[0])
+    feats = apply_kernel_map(x.features, weight, kmap, bias)
+    in_stride = tuple(a // b for a, b in zip(x.stride, st))
+    return SparseTensor(feats, entry.in_coords, entry.in_shape, in_stride, x.cache)
+
+
+def dense_to_weight(dense_weight: torch.Tensor) -> torch.Tensor:
+    """Convert a ``conv3d`` weight (out, in, kx, ky, kz) to our layout (kx*ky*kz, in, out)."""
+    o, i = dense_weight.shape[:2]
+    return dense_weight.permute(2, 3, 4, 1, 0).reshape(-1, i, o)
+
+
+def weight_to_dense(weight: torch.Tensor, kernel_size: tuple[int, int, int]) -> torch.Tensor:
+    """Inverse of :func:`dense_to_weight`: (kx*ky*kz, in, out) -> (out, in, kx, ky, kz)."""
+    _, i, o = weight.shape
+    return weight.reshape(*kernel_size, i, o).permute(4, 3, 0, 1, 2)
