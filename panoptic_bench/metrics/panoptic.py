@@ -1,0 +1,384 @@
+"""Exact LiDAR panoptic quality (PQ/SQ/RQ/PQ†) and mIoU: a pure kernel plus an addable accumulator.
+
+This reproduces the official SemanticKITTI evaluator (semantic-kitti-api ``auxiliary/eval_np.py``,
+shipped in nuscenes-devkit as ``nuscenes.eval.panoptic.panoptic_seg_evaluator.PanopticEval``) to
+floating-point round-off, with the matching vectorised over all classes at once.
+
+Rules (each one is a test in ``tests/test_metrics_panoptic.py``)
+----------------------------------------------------------------
+- Points whose **ground-truth** class is ignored are removed before matching; a prediction of an
+  ignored class is not removed (it forms no segment but still enlarges the union of the gt segment).
+- For each included class, a segment is the set of points of that class sharing one instance id
+  (for SemanticKITTI the instance id is the full uint32 label). Stuff classes are segments too.
+  Instance ids must be < 2**32; negative ids mark points that belong to no segment (as in the
+  reference, where ids are shifted by +1 and only ids > 0 form segments).
+- A prediction/gt pair of the same class matches when IoU > 0.5 (strictly). TP and the IoU sum
+  count every match; FP and FN count only unmatched segments with at least ``min_points`` points.
+- SQ = IoU sum / max(TP, eps), RQ = TP / max(TP + FP/2 + FN/2, eps), PQ = SQ * RQ, eps = 1e-15;
+  class means over the included classes.
+- Semantic IoU from one confusion matrix (rows = prediction, columns = ground truth) over all
+  points, with the columns of ignored classes zeroed; accuracy = sum of the diagonal / (sum of TP
+  and FP over included classes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+EPS = 1e-15
+_DENSE_CELL_LIMIT = 1 << 21  # count cells with a dense bincount below this many possible cells
+
+__all__ = ["EPS", "PanopticResult", "PanopticStats", "panoptic_stats"]
+
+
+def _class_array(name: str, arr: np.ndarray, num_classes: int) -> np.ndarray:
+    arr = np.asarray(arr)
+    if not np.issubdtype(arr.dtype, np.integer):
+        raise TypeError(f"{name} must be an integer array, got {arr.dtype}")
+    arr = arr.ravel()
+    if arr.size and (arr.min() < 0 or arr.max() >= num_classes):
+        raise ValueError(f"{name} holds class ids outside [0, {num_classes})")
+    return arr.astype(np.int32, copy=False)
+
+
+def _inst_array(name: str, arr: np.ndarray) -> np.ndarray:
+    arr = np.asarray(arr)
+    if not np.issubdtype(arr.dtype, np.integer):
+        raise TypeError(f"{name} must be an integer array, got {arr.dtype}")
+    arr = arr.ravel()
+    if arr.size and (arr.min() < 0 or arr.max() > 0xFFFFFFFF):
+        raise ValueError(f"{name} holds instance ids outside [0, 2**32)")
+    return arr
+
+
+def _count_cells(codes: np.ndarray, n_codes: int, sub: np.ndarray, n_sub: int):
+    """Distinct ``(code, sub)`` pairs as ``code * n_sub + sub`` (int64) and their counts.
+
+    Dense ``bincount`` when the cell space is small; when every code has a single ``sub`` (the
+    class is a function of the instance ids, as with full SemanticKITTI labels) a scatter suffices;
+    otherwise a second hash factorisation.
+    """
+    n_cells = n_codes * n_sub
+    if n_cells <= _DENSE_CELL_LIMIT:
+        counts = np.bincount(codes * n_sub + sub, minlength=n_cells)
+        cells = np.flatnonzero(counts)
+        return cells, counts[cells]
+    first = np.empty(n_codes, dtype=sub.dtype)
+    first[codes] = sub
+    if np.array_equal(first[codes], sub):
+        return np.arange(n_codes) * n_sub + first, np.bincount(codes, minlength=n_codes)
+    cells_codes, cells = pd.factorize(codes * n_sub + sub, sort=False, use_na_sentinel=False)
+    return cells, np.bincount(cells_codes, minlength=len(cells))
+
+
+def _int_sum(index: np.ndarray, weights: np.ndarray, size: int) -> np.ndarray:
+    """Exact integer ``bincount`` with integer weights (< 2**53), as int64 of shape (size,)."""
+    return np.rint(np.bincount(index, weights=weights, minlength=size)).astype(np.int64)
+
+
+def _group(keys: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Group cells by ``keys``: (distinct keys, summed integer weights, cell -> group)."""
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    return uniq, _int_sum(inverse, weights, len(uniq)), inverse
+
+
+def panoptic_stats(
+    sem_pred: np.ndarray,
+    inst_pred: np.ndarray,
+    sem_gt: np.ndarray,
+    inst_gt: np.ndarray,
+    *,
+    num_classes: int,
+    ignore: Sequence[int] = (0,),
+    min_points: int = 30,
+) -> PanopticStats:
+    """Panoptic and semantic counts of one scan (or any batch of points).
+
+    Parameters
+    ----------
+    sem_pred, sem_gt : array of shape (n_points,), integer in [0, num_classes)
+        Predicted and ground-truth class ids (train ids).
+    inst_pred, inst_gt : array of shape (n_points,), integer in [0, 2**32)
+        Instance ids used for matching, per class; for SemanticKITTI the full uint32 label.
+    num_classes : int
+        Number of classes C including the ignored ones.
+    ignore : sequence of int
+        Ignored class ids (``(0,)`` for SemanticKITTI).
+    min_points : int
+        Unmatched segments smaller than this count neither as FP nor as FN.
+
+    Returns
+    -------
+    PanopticStats
+        Counts to be summed over scans with ``+`` and turned into metrics by ``.compute()``.
+
+    Notes
+    -----
+    All per-point work is a handful of vectorised passes: the points are reduced to their
+    distinct *cells* ``(pred class, pred id, gt class, gt id)`` with one hash factorisation of the
+    id pair and one ``bincount``. Confusion matrix, segment sizes and intersections are then sums
+    over the (few hundred) cells, for all classes at once.
+    """
+    n = np.size(sem_pred)
+    if not (np.size(inst_pred) == np.size(sem_gt) == np.size(inst_gt) == n):
+        raise ValueError(
+            "sem_pred, inst_pred, sem_gt and inst_gt must have the same number of points, got "
+            f"{n}, {np.size(inst_pred)}, {np.size(sem_gt)}, {np.size(inst_gt)}"
+        )
+    C = int(num_classes)
+    sp = _class_array("sem_pred", sem_pred, C)
+    sg = _class_array("sem_gt", sem_gt, C)
+    ip = _inst_array("inst_pred", inst_pred)
+    ig = _inst_array("inst_gt", inst_gt)
+    stats = PanopticStats.zeros(C, ignore)
+    if n == 0:
+        return stats
+    ignored = np.zeros(C, dtype=bool)
+    ignored[list(stats.ignore)] = True
+
+    # 1. reduce the points to distinct cells (id pair, pred class, gt class) with their counts
+    id_pair = np.empty((n, 2), dtype=np.uint32)  # (gt id, pred id) viewed as one uint64 key
+    id_pair[:, 0] = ig
+    id_pair[:, 1] = ip
+    codes, pairs = pd.factorize(id_pair.view(np.uint64).ravel(), sort=False, use_na_sentinel=False)
+    cc = C * C
+    cells, cnt = _count_cells(codes, len(pairs), sp * C + sg, cc)
+    pair = pairs[cells // cc]
+    c_sp, c_sg = np.divmod(cells % cc, C)
+    pair = pair.view(np.uint32).reshape(-1, 2).astype(np.int64)
+    c_ig, c_ip = pair[:, 0], pair[:, 1]
+
+    # 2. semantic confusion over all points (rows = prediction, cols = gt)
+    stats.confusion += _int_sum(c_sp * C + c_sg, cnt, cc).reshape(C, C)
+
+    # 3. drop cells whose ground truth is ignored; segments = (class, id) of included classes
+    keep = ~ignored[c_sg]
+    c_sp, c_sg, c_ip, c_ig, cnt = c_sp[keep], c_sg[keep], c_ip[keep], c_ig[keep], cnt[keep]
+    pvalid = ~ignored[c_sp]
+    p_key, p_cnt, p_of = _group((c_sp[pvalid] << 32) | c_ip[pvalid], cnt[pvalid])
+    g_key, g_cnt, g_of = _group((c_sg << 32) | c_ig, cnt)
+    p_cls, g_cls = p_key >> 32, g_key >> 32
+
+    # 4. a cell with equal classes is exactly one (pred segment, gt segment) intersection
+    same = c_sp[pvalid] == c_sg[pvalid]
+    pp, gg = p_of[same], g_of[pvalid][same]
+    inter = cnt[pvalid][same]
+    iou = inter.astype(np.float64) / (p_cnt[pp] + g_cnt[gg] - inter).astype(np.float64)
+    match = iou > 0.5
+    m_cls = p_cls[pp[match]]
+    stats.tp += np.bincount(m_cls, minlength=C)
+    stats.iou_sum += np.bincount(m_cls, weights=iou[match], minlength=C)
+
+    p_matched = np.zeros(len(p_cnt), dtype=bool)
+    g_matched = np.zeros(len(g_cnt), dtype=bool)
+    p_matched[pp[match]] = True
+    g_matched[gg[match]] = True
+    stats.fp += np.bincount(p_cls[~p_matched & (p_cnt >= min_points)], minlength=C)
+    stats.fn += np.bincount(g_cls[~g_matched & (g_cnt >= min_points)], minlength=C)
+    return stats
+
+
+@dataclass(eq=False)
+class PanopticStats:
+    """Accumulated panoptic and semantic counts; add with ``+`` (e.g. across worker processes).
+
+    Attributes
+    ----------
+    tp, fp, fn : ndarray of shape (C,), int64
+        Matched segments, unmatched predicted and unmatched gt segments (>= min_points), per class.
+    iou_sum : ndarray of shape (C,), float64
+        Sum of the IoU of the matched pairs, per class.
+    confusion : ndarray of shape (C, C), int64
+        Point confusion matrix, rows = prediction, columns = ground truth.
+    ignore : tuple of int
+        Ignored class ids.
+    """
+
+    tp: np.ndarray
+    fp: np.ndarray
+    fn: np.ndarray
+    iou_sum: np.ndarray
+    confusion: np.ndarray
+    ignore: tuple[int, ...] = (0,)
+
+    def __post_init__(self) -> None:
+        self.ignore = tuple(sorted({int(c) for c in self.ignore}))
+        C = len(self.tp)
+        if any(c < 0 or c >= C for c in self.ignore):
+            raise ValueError(f"ignore ids {self.ignore} outside [0, {C})")
+        for name in ("fp", "fn", "iou_sum"):
+            if np.shape(getattr(self, name)) != (C,):
+                raise ValueError(f"{name} must have shape ({C},)")
+        if np.shape(self.confusion) != (C, C):
+            raise ValueError(f"confusion must have shape ({C}, {C})")
+
+    @property
+    def num_classes(self) -> int:
+        """Number of classes C."""
+        return len(self.tp)
+
+    @classmethod
+    def zeros(cls, num_classes: int, ignore: Sequence[int] = (0,)) -> PanopticStats:
+        """An empty accumulator for ``num_classes`` classes."""
+        C = int(num_classes)
+        z = np.zeros(C, dtype=np.int64)
+        return cls(
+            z.copy(), z.copy(), z.copy(), np.zeros(C), np.zeros((C, C), np.int64), tuple(ignore)
+        )
+
+    def __add__(self, other: PanopticStats) -> PanopticStats:
+        if not isinstance(other, PanopticStats):
+            return NotImplemented
+        if other.num_classes != self.num_classes or other.ignore != self.ignore:
+            raise ValueError("cannot add PanopticStats with different classes or ignore ids")
+        return PanopticStats(
+            self.tp + other.tp,
+            self.fp + other.fp,
+            self.fn + other.fn,
+            self.iou_sum + other.iou_sum,
+            self.confusion + other.confusion,
+            self.ignore,
+        )
+
+    def __radd__(self, other: object) -> PanopticStats:
+        if other == 0:  # allows sum(list_of_stats)
+            return self
+        return NotImplemented
+
+    def to_dict(self) -> dict:
+        """Plain-Python form (lists), e.g. for JSON or sending between processes."""
+        return {
+            "tp": self.tp.tolist(),
+            "fp": self.fp.tolist(),
+            "fn": self.fn.tolist(),
+            "iou_sum": self.iou_sum.tolist(),
+            "confusion": self.confusion.tolist(),
+            "ignore": list(self.ignore),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> PanopticStats:
+        """Inverse of :meth:`to_dict`; unknown keys are rejected."""
+        keys = {"tp", "fp", "fn", "iou_sum", "confusion", "ignore"}
+        if set(data) != keys:
+            raise ValueError(f"PanopticStats keys must be {sorted(keys)}, got {sorted(data)}")
+        i64 = np.int64
+        return cls(
+            np.asarray(data["tp"], i64),
+            np.asarray(data["fp"], i64),
+            np.asarray(data["fn"], i64),
+            np.asarray(data["iou_sum"], np.float64),
+            np.asarray(data["confusion"], i64),
+            tuple(data["ignore"]),
+        )
+
+    def compute(self) -> PanopticResult:
+        """Per-class PQ/SQ/RQ/IoU and their means, from the accumulated counts only."""
+        tp = self.tp.astype(np.float64)
+        sq = self.iou_sum / np.maximum(tp, EPS)
+        rq = tp / np.maximum(tp + 0.5 * self.fp + 0.5 * self.fn, EPS)
+        pq = sq * rq
+
+        conf = self.confusion.astype(np.float64)
+        conf[:, list(self.ignore)] = 0
+        ctp = conf.diagonal().copy()
+        cfp = conf.sum(axis=1) - ctp
+        cfn = conf.sum(axis=0) - ctp
+        union = np.maximum(ctp + cfp + cfn, EPS)
+        iou = ctp / union
+        include = tuple(c for c in range(self.num_classes) if c not in self.ignore)
+        inc = list(include)
+        accuracy = ctp.sum() / np.maximum(ctp[inc].sum() + cfp[inc].sum(), EPS)
+        return PanopticResult(
+            pq=pq,
+            sq=sq,
+            rq=rq,
+            iou=iou,
+            include=include,
+            accuracy=float(accuracy),
+            pq_mean=float(pq[inc].mean()),
+            sq_mean=float(sq[inc].mean()),
+            rq_mean=float(rq[inc].mean()),
+            miou=float(iou[inc].mean()),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PanopticResult:
+    """Metrics computed from a :class:`PanopticStats` (all fractions in [0, 1]).
+
+    Attributes
+    ----------
+    pq, sq, rq, iou : ndarray of shape (C,), float64
+        Per-class values (ignored classes included as computed, never averaged).
+    include : tuple of int
+        Class ids averaged in the means.
+    pq_mean, sq_mean, rq_mean, miou, accuracy : float
+        Means over ``include`` and the point accuracy.
+    """
+
+    pq: np.ndarray
+    sq: np.ndarray
+    rq: np.ndarray
+    iou: np.ndarray
+    include: tuple[int, ...]
+    accuracy: float
+    pq_mean: float
+    sq_mean: float
+    rq_mean: float
+    miou: float
+
+    def summary(self, things: Sequence[int], stuff: Sequence[int]) -> dict[str, float]:
+        """The headline numbers, as the official ``evaluate_panoptic.py`` computes them.
+
+        Parameters
+        ----------
+        things, stuff : sequence of int
+            Class ids of thing and stuff classes; together exactly the included classes.
+
+        Returns
+        -------
+        dict of str to float
+            ``PQ, PQ_dagger, SQ, RQ, PQ_th, SQ_th, RQ_th, PQ_st, SQ_st, RQ_st, mIoU, accuracy``.
+            ``PQ_dagger`` averages thing PQ and stuff IoU.
+        """
+        th, st = [int(c) for c in things], [int(c) for c in stuff]
+        if set(th) & set(st) or sorted(th + st) != sorted(self.include):
+            raise ValueError(
+                f"things {th} and stuff {st} must partition the included classes {self.include}"
+            )
+
+        def mean(arr: np.ndarray, ids: list[int]) -> float:
+            return float(np.mean(arr[ids])) if ids else float("nan")
+
+        allc = th + st
+        return {
+            "PQ": mean(self.pq, allc),
+            "PQ_dagger": float(np.mean(np.concatenate([self.pq[th], self.iou[st]]))),
+            "SQ": mean(self.sq, allc),
+            "RQ": mean(self.rq, allc),
+            "PQ_th": mean(self.pq, th),
+            "SQ_th": mean(self.sq, th),
+            "RQ_th": mean(self.rq, th),
+            "PQ_st": mean(self.pq, st),
+            "SQ_st": mean(self.sq, st),
+            "RQ_st": mean(self.rq, st),
+            "mIoU": self.miou,
+            "accuracy": self.accuracy,
+        }
+
+    def per_class(self, class_names: Sequence[str]) -> dict[str, dict[str, float]]:
+        """``{name: {"PQ", "SQ", "RQ", "IoU"}}`` for the included classes, as Python floats."""
+        return {
+            class_names[c]: {
+                "PQ": float(self.pq[c]),
+                "SQ": float(self.sq[c]),
+                "RQ": float(self.rq[c]),
+                "IoU": float(self.iou[c]),
+            }
+            for c in self.include
+        }
