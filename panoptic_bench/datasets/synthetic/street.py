@@ -1,0 +1,274 @@
+"""Procedural street layout: the static "stuff" of the synthetic world.
+
+A straight street along the world x axis, centred on ``y = 0``: a road with lanes and lane
+markings, parking strips in some segments, raised sidewalks with kerbs, and behind them a
+frontage chosen per segment (building facades, green areas with terrain, bushes and trees,
+fences, paved plazas of other-ground), with a second row of buildings further back. Lamp poles,
+traffic signs on poles and street trees stand on the sidewalks. The returned
+:class:`StreetPlan` says where things may be placed (parking strips, sidewalks, lanes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from panoptic_bench.datasets.synthetic.ground import GroundMap
+from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Primitives
+
+__all__ = ["StreetPlan", "build_street"]
+
+ROAD, PARKING, SIDEWALK, OTHER_GROUND = 40, 44, 48, 49
+BUILDING, FENCE, VEGETATION, TRUNK, TERRAIN, POLE, SIGN = 50, 51, 70, 71, 72, 80, 81
+KERB = 0.14
+PARKING_WIDTH = 2.3
+
+
+@dataclass
+class StreetPlan:
+    """Where things can go on a generated street (distances are unsigned, per side).
+
+    Attributes
+    ----------
+    lane_width : float
+    lanes_per_side : int
+    road_half : float
+        Half width of the carriageway (lanes of both directions).
+    sidewalk_width : float
+    parking : list of (side, x0, x1)
+        Parking strips; ``side`` is +1 (left, y > 0) or -1 (right).
+    curb : list of (side, x0, x1, y_curb)
+        Per segment, the distance of the kerb (sidewalk inner edge) from the centre line.
+    """
+
+    lane_width: float
+    lanes_per_side: int
+    road_half: float
+    sidewalk_width: float
+    parking: list = field(default_factory=list)
+    curb: list = field(default_factory=list)
+
+
+class _Builder:
+    """Accumulates primitive rows, splitting long boxes so angular culling stays tight."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple] = []
+
+    def add(self, kind, center, half, label, reflect, yaw=0.0, rough=0.0) -> None:
+        self.rows.append((kind, center, half, yaw, label, reflect, rough))
+
+    def box(self, x0, x1, y0, y1, z0, z1, label, reflect, rough=0.0, piece=6.0) -> None:
+        y0, y1 = min(y0, y1), max(y0, y1)
+        n = max(1, int(np.ceil((x1 - x0) / piece)))
+        edges = np.linspace(x0, x1, n + 1)
+        for a, b in zip(edges[:-1], edges[1:]):
+            center = ((a + b) / 2, (y0 + y1) / 2, (z0 + z1) / 2)
+            self.add(
+                BOX,
+                center,
+                ((b - a) / 2, (y1 - y0) / 2, (z1 - z0) / 2),
+                label,
+                reflect,
+                rough=rough,
+            )
+
+    def primitives(self) -> Primitives:
+        n = len(self.rows)
+        if n == 0:
+            return Primitives.empty()
+        return Primitives(
+            np.array([r[0] for r in self.rows], np.int8),
+            np.array([r[1] for r in self.rows], float),
+            np.array([r[2] for r in self.rows], float),
+            np.array([r[3] for r in self.rows], float),
+            np.array([r[4] for r in self.rows], np.uint16),
+            np.full(n, -1, np.int32),
+            np.array([r[5] for r in self.rows], np.float32),
+            np.array([r[6] for r in self.rows], np.float32),
+        )
+
+
+def _tree(b: _Builder, rng: np.random.Generator, x: float, y: float, z: float) -> None:
+    trunk_h = rng.uniform(2.0, 3.5)
+    r = rng.uniform(0.12, 0.25)
+    b.add(CYLINDER, (x, y, z + trunk_h / 2), (r, r, trunk_h / 2), TRUNK, rng.uniform(0.25, 0.4))
+    rc = rng.uniform(1.4, 3.2)
+    rz = rc * rng.uniform(0.8, 1.3)
+    center = (x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z + trunk_h + 0.7 * rz)
+    b.add(ELLIPSOID, center, (rc, rc * rng.uniform(0.8, 1.2), rz), VEGETATION, 0.45, rough=0.25)
+
+
+def _bush(b: _Builder, rng: np.random.Generator, x: float, y: float) -> None:
+    rx, ry, rz = rng.uniform(0.5, 1.6), rng.uniform(0.5, 1.6), rng.uniform(0.4, 1.1)
+    b.add(
+        ELLIPSOID,
+        (x, y, 0.6 * rz),
+        (rx, ry, rz),
+        VEGETATION,
+        0.45,
+        yaw=rng.uniform(0, np.pi),
+        rough=0.12,
+    )
+
+
+def _buildings(b: _Builder, rng, x0, x1, side, y_near, heights=(6.0, 22.0)) -> None:
+    x = x0
+    while x < x1 - 2.0:
+        w = min(rng.uniform(8.0, 20.0), x1 - x)
+        h = rng.uniform(*heights)
+        depth = rng.uniform(6.0, 12.0)
+        inset = rng.uniform(0.0, 1.0)
+        y_a = side * (y_near + inset)
+        b.box(x, x + w, y_a, y_a + side * depth, 0.0, h, BUILDING, rng.uniform(0.25, 0.55))
+        x += w + (rng.uniform(1.0, 4.0) if rng.random() < 0.3 else 0.0)
+
+
+def _segment(
+    b: _Builder, gm: GroundMap, rng, plan: StreetPlan, side: int, x0: float, x1: float
+) -> None:
+    parking = rng.random() < 0.45
+    y_curb = plan.road_half + (PARKING_WIDTH if parking else 0.0)
+    if parking:
+        plan.parking.append((side, x0, x1))
+        ys = sorted((side * plan.road_half, side * y_curb))
+        gm.paint(x0, x1, ys[0], ys[1], PARKING, 0.32)
+    plan.curb.append((side, x0, x1, y_curb))
+    y_front = y_curb + plan.sidewalk_width
+    b.box(x0, x1, side * y_curb, side * y_front, 0.0, KERB, SIDEWALK, 0.4)
+    kind = rng.choice(["building", "green", "fence", "plaza"], p=[0.38, 0.36, 0.14, 0.12])
+    back = y_front + rng.uniform(12.0, 22.0)
+    if kind == "building":
+        setback = rng.uniform(0.0, 3.0)
+        if setback > 0.5:
+            ys = sorted((side * y_front, side * (y_front + setback)))
+            gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND if rng.random() < 0.6 else TERRAIN, 0.3)
+        _buildings(b, rng, x0, x1, side, y_front + setback)
+        return
+    if kind == "plaza":
+        ys = sorted((side * y_front, side * back))
+        gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND, 0.28)
+    else:
+        if kind == "fence":
+            fh = rng.uniform(1.0, 2.0)
+            yf = side * (y_front + 0.3)
+            b.box(x0 + 0.5, x1 - 0.5, yf, yf + side * 0.06, 0.0, fh, FENCE, rng.uniform(0.2, 0.5))
+        else:
+            hedge = rng.random() < 0.5
+            if hedge:
+                yh = side * (y_front + 0.2)
+                b.box(
+                    x0 + 0.5,
+                    x1 - 0.5,
+                    yh,
+                    yh + side * 0.9,
+                    0.0,
+                    rng.uniform(0.8, 1.6),
+                    VEGETATION,
+                    0.45,
+                    rough=0.12,
+                )
+        if rng.random() < 0.5:
+            xp = rng.uniform(x0, x1 - 2.0)
+            ys = sorted((side * y_front, side * back))
+            gm.paint(xp, xp + 2.0, ys[0], ys[1], OTHER_GROUND, 0.28)
+        length = x1 - x0
+        for _ in range(rng.poisson(length / 6.0)):
+            _tree(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0), 0.0)
+        for _ in range(rng.poisson(length / 4.0)):
+            _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0))
+    _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
+
+
+def curb_at(plan: StreetPlan, side: int, x: float) -> float:
+    """Distance of the kerb from the centre line on ``side`` at ``x``."""
+    for s, a, b, y in plan.curb:
+        if s == side and a <= x < b:
+            return y
+    return plan.road_half
+
+
+def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None:
+    for side in (-1, 1):
+
+        def y_curb_at(x: float, side: int = side) -> float:
+            return curb_at(plan, side, x)
+
+        x = x0 + rng.uniform(0, 20)
+        while x < x1:
+            y = side * (y_curb_at(x) + 0.45)
+            h = rng.uniform(6.0, 9.0)
+            b.add(CYLINDER, (x, y, KERB + h / 2), (0.1, 0.1, h / 2), POLE, 0.4)
+            b.add(BOX, (x, y - side * 0.8, KERB + h - 0.1), (0.08, 0.8, 0.06), POLE, 0.4)
+            x += rng.uniform(18.0, 32.0)
+        x = x0 + rng.uniform(0, 30)
+        while x < x1:
+            y = side * (y_curb_at(x) + 0.5)
+            h = rng.uniform(2.2, 2.8)
+            b.add(CYLINDER, (x, y, KERB + h / 2), (0.035, 0.035, h / 2), POLE, 0.4)
+            b.add(BOX, (x + 0.05, y, KERB + h + 0.3), (0.01, 0.32, 0.32), SIGN, 0.95)
+            x += rng.uniform(25.0, 60.0)
+        x = x0
+        while x < x1:
+            seg = rng.uniform(20.0, 50.0)
+            if rng.random() < 0.55:
+                xt = x + rng.uniform(2.0, 6.0)
+                while xt < min(x + seg, x1):
+                    _tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), KERB)
+                    xt += rng.uniform(7.0, 12.0)
+            x += seg
+
+
+def _markings(gm: GroundMap, rng, plan: StreetPlan, x0: float, x1: float) -> None:
+    gm.paint(x0, x1, -plan.road_half, plan.road_half, ROAD, 0.3)
+    noise = rng.normal(0.0, 0.025, size=gm.reflect.shape).astype(np.float32)
+    gm.reflect += np.where(gm.label == ROAD, noise, 0.0).astype(np.float32)
+    lines = [0.0] + [
+        k * plan.lane_width * s for k in range(1, plan.lanes_per_side) for s in (-1, 1)
+    ]
+    for y in lines:
+        for xd in np.arange(x0, x1, 9.0):
+            gm.paint(xd, xd + 3.0, y - 0.075, y + 0.075, None, 0.75)
+    for s in (-1, 1):
+        y = s * (plan.lanes_per_side * plan.lane_width + 0.1)
+        gm.paint(x0, x1, y - 0.06, y + 0.06, None, 0.7)
+
+
+def build_street(
+    rng: np.random.Generator, x_range: tuple[float, float]
+) -> tuple[Primitives, GroundMap, StreetPlan]:
+    """Generate the static world of one street.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of randomness (the street is a pure function of its state).
+    x_range : tuple of float
+        Extent of the street along x, metres.
+
+    Returns
+    -------
+    static : Primitives
+        Every static stuff primitive, world frame.
+    ground : GroundMap
+        Labels and reflectivity of the ground plane.
+    plan : StreetPlan
+        Where things can be placed.
+    """
+    x0, x1 = x_range
+    lanes = int(rng.choice([1, 2], p=[0.45, 0.55]))
+    lane_w = float(rng.uniform(3.3, 3.8))
+    shoulder = float(rng.uniform(0.5, 2.0))
+    plan = StreetPlan(lane_w, lanes, lanes * lane_w + shoulder, float(rng.uniform(3.0, 5.5)))
+    gm = GroundMap.blank((x0 - 5.0, x1 + 5.0), (-70.0, 70.0))
+    _markings(gm, rng, plan, x0 - 5.0, x1 + 5.0)
+    b = _Builder()
+    for side in (-1, 1):
+        x = x0
+        while x < x1:
+            length = min(rng.uniform(15.0, 40.0), x1 - x)
+            _segment(b, gm, rng, plan, side, x, x + length)
+            x += length
+    _furniture(b, rng, plan, x0, x1)
+    return b.primitives(), gm, plan
