@@ -1,0 +1,84 @@
+"""``panoptic-bench eval nuscenes``: Panoptic nuScenes scoring (devkit-identical numbers).
+
+``commands/eval.py`` owns the ``eval`` group and calls :func:`add_parser`; while it is absent,
+:func:`register` provides an ``eval`` group holding only this target.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add ``nuscenes`` to the sub-commands of ``eval``."""
+    p = eval_subparsers.add_parser(
+        "nuscenes",
+        help="Panoptic nuScenes PQ/SQ/RQ/mIoU (same numbers as the devkit evaluator)",
+        description=(
+            "Score RES/panoptic/<eval-set>/<sample_data_token>_panoptic.npz (key 'data': "
+            "challenge class x 1000 + instance) against the dataroot's panoptic ground truth. "
+            "Writes segmentation-result.json (devkit structure), scores.json and per_class.csv."
+        ),
+    )
+    p.add_argument("--dataroot", required=True, help="nuScenes dataroot with panoptic labels")
+    p.add_argument("--version", required=True, help="e.g. v1.0-mini, v1.0-trainval")
+    p.add_argument("--result-path", required=True, help="folder holding panoptic/<eval-set>/")
+    p.add_argument("--eval-set", required=True, help="devkit split: mini_val, val, test, ...")
+    p.add_argument(
+        "--min-inst-points",
+        type=int,
+        default=15,
+        help="unmatched segments smaller than this are not counted (default 15, as the devkit)",
+    )
+    p.add_argument(
+        "--by-range",
+        default=None,
+        metavar="EDGES",
+        help="also score per range bin, comma-separated edges in metres, e.g. 0,10,20,30,50",
+    )
+    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--output", required=True, help="output directory")
+    p.set_defaults(func=run)
+    return p
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Provide ``eval nuscenes`` on its own unless ``commands/eval.py`` already owns ``eval``."""
+    if "eval" in subparsers.choices:
+        return
+    parser = subparsers.add_parser("eval", help="score predictions")
+    sub = parser.add_subparsers(dest="eval_target", metavar="TARGET", required=True)
+    add_parser(sub)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler of ``eval nuscenes``."""
+    from panoptic_bench.errors import InputError
+    from panoptic_bench.evaluation.nuscenes import evaluate_nuscenes, write_nuscenes_result
+    from panoptic_bench.metrics.by_range import parse_edges
+
+    edges = None
+    if args.by_range is not None:
+        try:
+            edges = parse_edges(args.by_range)
+        except ValueError as exc:
+            raise InputError(f"--by-range: {exc}") from None
+    evaluation = evaluate_nuscenes(
+        args.dataroot,
+        args.version,
+        args.result_path,
+        args.eval_set,
+        min_inst_points=args.min_inst_points,
+        by_range=edges,
+        workers=args.workers,
+    )
+    out = write_nuscenes_result(
+        evaluation, args.output, inputs=(args.dataroot, f"{args.result_path}/panoptic")
+    )
+    res = evaluation.devkit_result()["all"]
+    print(
+        f"{evaluation.n_samples} samples of {args.eval_set}: "
+        + "  ".join(f"{k} {100 * v:.2f}" for k, v in res.items())
+    )
+    print(f"results written to {out}")
+    return 0

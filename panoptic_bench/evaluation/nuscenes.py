@@ -1,0 +1,327 @@
+"""Panoptic nuScenes evaluation: the devkit's numbers from our metric core, with input checks.
+
+Equivalent to ``nuscenes.eval.panoptic.evaluate.NuScenesPanopticEval(..., task='segmentation')``:
+predictions are read from ``RES/panoptic/<eval_set>/<sample_data_token>_panoptic.npz`` (key
+``data``: challenge class x 1000 + instance), the ground truth from the dataroot's ``panoptic`` table,
+mapped from the 32 general classes to the 16 challenge classes + ignore (0) with the devkit's
+``PanopticClassMapper``. Matching uses the full panoptic label as instance id for both sides, class 0
+is ignored, ``min_inst_points`` (default 15) applies to unmatched segments.
+
+Unlike the devkit, every prediction is checked (present, has ``data``, one label per point of the
+sweep, classes in 0..16) and reported as an :class:`~panoptic_bench.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from panoptic_bench.datasets.nuscenes_reader import (
+    POINT_DIMS,
+    NuScenesLidar,
+    load_panoptic_npz,
+)
+from panoptic_bench.errors import InputError
+from panoptic_bench.io import ensure_output_dir, write_json, write_text
+from panoptic_bench.metrics.by_range import RangeStats, panoptic_stats_by_range, point_range
+from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats
+
+IGNORE = 0
+
+
+@dataclass(frozen=True)
+class ChallengeClasses:
+    """The Panoptic nuScenes challenge classes (from the devkit's ``PanopticClassMapper``).
+
+    Attributes
+    ----------
+    names : tuple of str
+        Name of each challenge class id (0 = ``ignore``).
+    things, stuff : tuple of int
+        Thing (1..10) and stuff (11..16) class ids.
+    lut : ndarray of shape (n_general,), int64
+        General class index -> challenge class id.
+    dagger_things, dagger_stuff : tuple of int
+        Thing and stuff ids in the devkit mapper's dict order (built from sets, so it depends on
+        the string hash seed): PQ† averages in this order to match the devkit to the last bit.
+    """
+
+    names: tuple[str, ...]
+    things: tuple[int, ...]
+    stuff: tuple[int, ...]
+    lut: np.ndarray
+    dagger_things: tuple[int, ...] = ()
+    dagger_stuff: tuple[int, ...] = ()
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.names)
+
+    @classmethod
+    def from_nusc(cls, nusc: Any) -> ChallengeClasses:
+        from nuscenes.eval.panoptic.utils import PanopticClassMapper
+
+        mapper = PanopticClassMapper(nusc)
+        coarse = mapper.coarse_name_2_coarse_idx_mapping
+        names = [""] * len(coarse)
+        for name, idx in coarse.items():
+            names[idx] = name
+        fine = mapper.fine_idx_2_coarse_idx_mapping
+        lut = np.full(max(fine) + 1, -1, dtype=np.int64)
+        for f, c in fine.items():
+            lut[f] = c
+        return cls(
+            tuple(names),
+            tuple(sorted(mapper.things.values())),
+            tuple(sorted(mapper.stuff.values())),
+            lut,
+            tuple(mapper.things.values()),
+            tuple(mapper.stuff.values()),
+        )
+
+
+@dataclass(frozen=True)
+class _Job:
+    token: str
+    gt_path: str
+    pred_path: str
+    points_path: str
+    n_points: int
+
+
+def _score_one(
+    job: _Job,
+    classes: ChallengeClasses,
+    min_points: int,
+    edges: tuple[float, ...] | None,
+) -> tuple[PanopticStats, RangeStats | None]:
+    gt = load_panoptic_npz(job.gt_path)
+    if len(gt) != job.n_points:
+        raise InputError(
+            f"{len(gt)} ground-truth labels but the sweep of sample_data {job.token} has "
+            f"{job.n_points} points",
+            job.gt_path,
+        )
+    gt_general = gt // 1000
+    if gt_general.max(initial=0) >= len(classes.lut) or (classes.lut[gt_general] < 0).any():
+        raise InputError("ground truth holds unknown general class ids", job.gt_path)
+    pred = load_panoptic_npz(job.pred_path)
+    if len(pred) != job.n_points:
+        raise InputError(
+            f"prediction has {len(pred)} labels but the sweep of sample_data {job.token} has "
+            f"{job.n_points} points",
+            job.pred_path,
+        )
+    pred_sem = pred // 1000
+    bad = (pred_sem < 0) | (pred_sem >= classes.num_classes)
+    if bad.any():
+        raise InputError(
+            f"prediction class ids must be 0..{classes.num_classes - 1} (label // 1000); "
+            f"found {int(pred_sem[bad][0])} (label {int(pred[bad][0])})",
+            job.pred_path,
+        )
+    if (pred < 0).any():
+        raise InputError("prediction labels must be non-negative", job.pred_path)
+    sem_gt = classes.lut[gt_general]
+    args = (pred_sem, pred.astype(np.int64), sem_gt, gt.astype(np.int64))
+    kw = {"num_classes": classes.num_classes, "ignore": (IGNORE,), "min_points": min_points}
+    stats = panoptic_stats(*args, **kw)
+    ranges = None
+    if edges is not None:
+        pts = np.fromfile(job.points_path, dtype=np.float32).reshape(-1, POINT_DIMS)
+        ranges = panoptic_stats_by_range(*args, point_range(pts), edges, **kw)
+    return stats, ranges
+
+
+def _score_chunk(args: tuple) -> list[tuple[PanopticStats, RangeStats | None]]:
+    """Per-sample counts of a chunk (kept apart: summed in sample order, as the devkit does)."""
+    jobs, classes, min_points, edges = args
+    return [_score_one(j, classes, min_points, edges) for j in jobs]
+
+
+@dataclass
+class NuScenesEvaluation:
+    """Accumulated counts of an eval set and the devkit-shaped result.
+
+    Attributes
+    ----------
+    stats : PanopticStats
+    by_range : RangeStats or None
+    classes : ChallengeClasses
+    n_samples : int
+    """
+
+    stats: PanopticStats
+    by_range: RangeStats | None
+    classes: ChallengeClasses
+    n_samples: int
+
+    def devkit_result(self) -> dict[str, dict[str, float]]:
+        """``{"all": {PQ, SQ, RQ, mIoU, PQ_dagger}, "<class>": {PQ, SQ, RQ, IoU}, ...}``.
+
+        The ``segmentation`` part of the devkit's ``segmentation-result.json``, same keys and order.
+        """
+        res = self.stats.compute()
+        out: dict[str, dict[str, float]] = {
+            "all": {"PQ": res.pq_mean, "SQ": res.sq_mean, "RQ": res.rq_mean, "mIoU": res.miou}
+        }
+        for idx, name in enumerate(self.classes.names):
+            out[name] = {
+                "PQ": float(res.pq[idx]),
+                "SQ": float(res.sq[idx]),
+                "RQ": float(res.rq[idx]),
+                "IoU": float(res.iou[idx]),
+            }
+        dagger = [float(res.pq[c]) for c in self.classes.dagger_things or self.classes.things]
+        dagger += [float(res.iou[c]) for c in self.classes.dagger_stuff or self.classes.stuff]
+        out["all"]["PQ_dagger"] = float(np.mean(dagger))
+        return out
+
+
+def evaluate_nuscenes(
+    dataroot: str | Path,
+    version: str,
+    result_path: str | Path,
+    eval_set: str,
+    *,
+    min_inst_points: int = 15,
+    by_range: Sequence[float] | None = None,
+    workers: int = 1,
+    progress: bool | None = None,
+    reader: NuScenesLidar | None = None,
+) -> NuScenesEvaluation:
+    """Score Panoptic nuScenes predictions of an eval set.
+
+    Parameters
+    ----------
+    dataroot, version : str
+        nuScenes dataroot holding the ``panoptic`` ground truth, and its version.
+    result_path : str or Path
+        Holds ``panoptic/<eval_set>/<sample_data_token>_panoptic.npz``.
+    eval_set : str
+        A devkit split of the version (``mini_val``, ``val``, ...).
+    min_inst_points : int
+        Unmatched segments smaller than this are not counted (devkit default 15).
+    by_range : sequence of float, optional
+        Range-bin edges (m) for metrics per distance bin.
+    workers : int
+        Worker processes.
+    progress : bool or None
+        tqdm progress bar (None: only on a terminal).
+    reader : NuScenesLidar, optional
+        An already opened dataroot.
+
+    Returns
+    -------
+    NuScenesEvaluation
+    """
+    if workers < 1:
+        raise InputError(f"--workers must be >= 1, got {workers}")
+    if min_inst_points < 0:
+        raise InputError(f"--min-inst-points must be >= 0, got {min_inst_points}")
+    reader = reader or NuScenesLidar(dataroot, version)
+    if not hasattr(reader.nusc, "panoptic") or len(reader.nusc.panoptic) == 0:
+        raise InputError(
+            "no panoptic ground truth in this dataroot; generate it with "
+            f"'panoptic-bench nuscenes make-labels --dataroot {dataroot} --version {version} "
+            f"--out-dir {dataroot}'",
+            reader.table_root / "panoptic.json",
+        )
+    classes = ChallengeClasses.from_nusc(reader.nusc)
+    pred_dir = Path(result_path) / "panoptic" / eval_set
+    if not pred_dir.is_dir():
+        raise InputError("prediction folder panoptic/<eval_set> not found", pred_dir)
+    tokens = reader.sample_data_tokens(eval_set)
+    jobs = []
+    for tok in tokens:
+        pred = pred_dir / f"{tok}_panoptic.npz"
+        if not pred.is_file():
+            raise InputError(f"prediction for sample_data {tok} is missing", pred)
+        jobs.append(
+            _Job(
+                tok,
+                str(reader.label_path(tok, "panoptic")),
+                str(pred),
+                str(reader.points_path(tok)),
+                reader.num_points(tok),
+            )
+        )
+    edges = None if by_range is None else tuple(float(e) for e in by_range)
+    stats = PanopticStats.zeros(classes.num_classes, (IGNORE,))
+    ranges = None if edges is None else RangeStats.zeros(edges, classes.num_classes, (IGNORE,))
+    chunk = 8
+    chunks = [
+        (jobs[i : i + chunk], classes, min_inst_points, edges) for i in range(0, len(jobs), chunk)
+    ]
+    disable = None if progress is None else not progress
+    bar = tqdm(total=len(jobs), desc=f"nuScenes {eval_set}", unit="sweep", disable=disable)
+    if workers == 1 or len(chunks) < 2:
+        results = map(_score_chunk, chunks)
+        pool = None
+    else:
+        import multiprocessing as mp
+
+        pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+        results = pool.map(_score_chunk, chunks)
+    try:
+        for per_sample in results:
+            for s, r in per_sample:
+                stats = stats + s
+                if ranges is not None:
+                    ranges = ranges + r
+            bar.update(len(per_sample))
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    return NuScenesEvaluation(stats, ranges, classes, len(jobs))
+
+
+def write_nuscenes_result(
+    evaluation: NuScenesEvaluation, output: str | Path, *, inputs: Sequence[str | Path] = ()
+) -> Path:
+    """Write ``segmentation-result.json`` (devkit structure), ``scores.json`` and ``per_class.csv``.
+
+    Parameters
+    ----------
+    evaluation : NuScenesEvaluation
+    output : str or Path
+        Output directory (created; may not lie inside any of ``inputs``).
+    inputs : sequence of paths
+        Input trees never to write into.
+
+    Returns
+    -------
+    Path
+        The output directory.
+    """
+    out = ensure_output_dir(output, inputs=tuple(inputs))
+    res = evaluation.stats.compute()
+    classes = evaluation.classes
+    summary = res.summary(classes.things, classes.stuff)
+    scores = {
+        "all": summary,
+        "classes": res.per_class(classes.names),
+        "by_range": [],
+        "n_samples": evaluation.n_samples,
+    }
+    if evaluation.by_range is not None:
+        for (lo, hi, r), n in zip(
+            evaluation.by_range.compute(), evaluation.by_range.point_counts()
+        ):
+            row = {"range": [lo, hi], "points": n}
+            row.update(r.summary(classes.things, classes.stuff))
+            scores["by_range"].append(row)
+    lines = ["class,PQ,SQ,RQ,IoU"]
+    for name, m in scores["classes"].items():
+        lines.append(f"{name},{m['PQ']!r},{m['SQ']!r},{m['RQ']!r},{m['IoU']!r}")
+    write_json(out / "segmentation-result.json", {"segmentation": evaluation.devkit_result()})
+    write_json(out / "scores.json", scores)
+    write_text(out / "per_class.csv", "\n".join(lines) + "\n")
+    return out
