@@ -9,6 +9,8 @@ reads, and never recomputes:
              "PQ_st", "SQ_st", "RQ_st", "mIoU", "accuracy"},
      "classes": {name: {"PQ", "SQ", "RQ", "IoU"}},
      "by_range": [{"range": [lo, hi], "all": {...}}, ...]}      # optional; hi may be null
+                                                                # or Infinity; the metrics may
+                                                                # also sit in the entry itself
 
 ``run.json`` (optional) says what the numbers are. Every key is optional; unknown keys are an
 error (so a typo does not silently drop a row from a table)::
@@ -42,7 +44,9 @@ from panoptic_bench.errors import InputError
 SCORES_FILE = "scores.json"
 RUN_FILE = "run.json"
 ABLATION_KEYS = ("framework", "clustering", "bandwidth_learning")
-_QUALITIES = ("PQ", "SQ", "RQ")
+_FLAT_METRICS = frozenset(
+    ("PQ", "PQ_dagger", "SQ", "RQ", "PQ_th", "SQ_th", "RQ_th", "PQ_st", "SQ_st", "RQ_st", "mIoU")
+) | {"accuracy"}
 
 
 @dataclass(frozen=True)
@@ -182,7 +186,11 @@ def _check_metric(value: Any, where: str, path: Path) -> None:
 
 
 def validate_scores(scores: Any, path: str | Path) -> dict:
-    """Check the structure of a parsed ``scores.json``; raise InputError naming ``path``."""
+    """Check a parsed ``scores.json`` and return it with ``by_range`` normalised.
+
+    Every ``by_range`` entry gets an ``"all"`` object (flat entries are folded into one) and an
+    open upper bound ``None``. Raises InputError naming ``path`` on any structural problem.
+    """
     path = Path(path)
     if not isinstance(scores, dict) or not isinstance(scores.get("all"), dict):
         raise InputError("scores.json must be an object with an 'all' object of metrics", path)
@@ -202,6 +210,7 @@ def validate_scores(scores: Any, path: str | Path) -> dict:
     by_range = scores.get("by_range", []) or []
     if not isinstance(by_range, list):
         raise InputError("'by_range' must be a list of {'range': [lo, hi], 'all': {...}}", path)
+    normalized = []
     for i, entry in enumerate(by_range):
         rng = entry.get("range") if isinstance(entry, dict) else None
         ok = (
@@ -209,12 +218,20 @@ def validate_scores(scores: Any, path: str | Path) -> dict:
             and len(rng) == 2
             and _is_number(rng[0])
             and (rng[1] is None or _is_number(rng[1]))
-            and isinstance(entry.get("all"), dict)
         )
         if not ok:
             raise InputError(f"by_range[{i}] must be {{'range': [lo, hi], 'all': {{...}}}}", path)
-        for key, value in entry["all"].items():
-            _check_metric(value, f"by_range[{i}].all.{key}", path)
+        metrics = entry.get("all")
+        if metrics is None:  # flat form: {"range": [lo, hi], "points": n, "PQ": ..., ...}
+            metrics = {k: v for k, v in entry.items() if k in _FLAT_METRICS}
+        if not isinstance(metrics, dict):
+            raise InputError(f"by_range[{i}].all must be an object of metrics", path)
+        for key, value in metrics.items():
+            _check_metric(value, f"by_range[{i}].{key}", path)
+        hi = None if rng[1] is None or math.isinf(rng[1]) else rng[1]
+        normalized.append({**entry, "range": [rng[0], hi], "all": metrics})
+    scores = dict(scores)
+    scores["by_range"] = normalized
     return scores
 
 
