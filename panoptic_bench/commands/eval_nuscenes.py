@@ -17,7 +17,8 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
         description=(
             "Score RES/panoptic/<eval-set>/<sample_data_token>_panoptic.npz (key 'data': "
             "challenge class x 1000 + instance) against the dataroot's panoptic ground truth. "
-            "Writes segmentation-result.json (devkit structure), scores.json and per_class.csv."
+            "Writes segmentation-result.json (devkit structure), scores.txt, scores.json and "
+            "per_class.csv."
         ),
     )
     p.add_argument("--dataroot", required=True, help="nuScenes dataroot with panoptic labels")
@@ -55,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     """Handler of ``eval nuscenes``."""
     from panoptic_bench.errors import InputError
     from panoptic_bench.evaluation.nuscenes import evaluate_nuscenes, write_nuscenes_result
+    from panoptic_bench.evaluation.output import check_output_location, percent_table
     from panoptic_bench.metrics.by_range import parse_edges
 
     edges = None
@@ -63,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
             edges = parse_edges(args.by_range)
         except ValueError as exc:
             raise InputError(f"--by-range: {exc}") from None
+    inputs = (args.dataroot, f"{args.result_path}/panoptic")
+    check_output_location(args.output, inputs)
     evaluation = evaluate_nuscenes(
         args.dataroot,
         args.version,
@@ -72,13 +76,7 @@ def run(args: argparse.Namespace) -> int:
         by_range=edges,
         workers=args.workers,
     )
-    out = write_nuscenes_result(
-        evaluation, args.output, inputs=(args.dataroot, f"{args.result_path}/panoptic")
-    )
-    res = evaluation.devkit_result()["all"]
-    print(
-        f"{evaluation.n_samples} samples of {args.eval_set}: "
-        + "  ".join(f"{k} {100 * v:.2f}" for k, v in res.items())
-    )
-    print(f"results written to {out}")
+    scores = write_nuscenes_result(evaluation, args.output, inputs=inputs)
+    print(percent_table(scores), end="")
+    print(f"{evaluation.n_samples} samples of {args.eval_set}; results written to {args.output}")
     return 0

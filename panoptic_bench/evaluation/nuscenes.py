@@ -28,7 +28,7 @@ from panoptic_bench.datasets.nuscenes_reader import (
     load_panoptic_npz,
 )
 from panoptic_bench.errors import InputError
-from panoptic_bench.io import ensure_output_dir, write_json, write_text
+from panoptic_bench.io import ensure_output_dir, write_json
 from panoptic_bench.metrics.by_range import RangeStats, panoptic_stats_by_range, point_range
 from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats
 
@@ -285,8 +285,11 @@ def evaluate_nuscenes(
 
 def write_nuscenes_result(
     evaluation: NuScenesEvaluation, output: str | Path, *, inputs: Sequence[str | Path] = ()
-) -> Path:
-    """Write ``segmentation-result.json`` (devkit structure), ``scores.json`` and ``per_class.csv``.
+) -> dict[str, Any]:
+    """Write ``segmentation-result.json`` (devkit structure) and the shared score files.
+
+    ``scores.txt``, ``scores.json`` (with ``by_range`` and ``n_samples``) and ``per_class.csv``
+    come from :func:`panoptic_bench.evaluation.output.write_scores`.
 
     Parameters
     ----------
@@ -298,30 +301,20 @@ def write_nuscenes_result(
 
     Returns
     -------
-    Path
-        The output directory.
+    dict
+        The ``scores.json`` content.
     """
+    from panoptic_bench.evaluation.output import write_scores
+
     out = ensure_output_dir(output, inputs=tuple(inputs))
-    res = evaluation.stats.compute()
     classes = evaluation.classes
-    summary = res.summary(classes.things, classes.stuff)
-    scores = {
-        "all": summary,
-        "classes": res.per_class(classes.names),
-        "by_range": [],
-        "n_samples": evaluation.n_samples,
-    }
-    if evaluation.by_range is not None:
-        for (lo, hi, r), n in zip(
-            evaluation.by_range.compute(), evaluation.by_range.point_counts()
-        ):
-            row = {"range": [lo, hi], "points": n}
-            row.update(r.summary(classes.things, classes.stuff))
-            scores["by_range"].append(row)
-    lines = ["class,PQ,SQ,RQ,IoU"]
-    for name, m in scores["classes"].items():
-        lines.append(f"{name},{m['PQ']!r},{m['SQ']!r},{m['RQ']!r},{m['IoU']!r}")
     write_json(out / "segmentation-result.json", {"segmentation": evaluation.devkit_result()})
-    write_json(out / "scores.json", scores)
-    write_text(out / "per_class.csv", "\n".join(lines) + "\n")
-    return out
+    return write_scores(
+        out,
+        evaluation.stats.compute(),
+        class_names=classes.names,
+        things=classes.things,
+        stuff=classes.stuff,
+        by_range=evaluation.by_range,
+        extra={"n_samples": evaluation.n_samples},
+    )
