@@ -125,8 +125,8 @@ def _sidewalk(rng, plan: StreetPlan, x_range, things: list[Thing]) -> None:
             v = rng.choice([-1.0, 1.0]) * rng.uniform(0.8, 1.6) if walking else 0.0
             lateral = rng.uniform(1.2, max(1.25, sw - 0.8))
             for k in range(size):
-                dx = (k // 2) * rng.uniform(0.6, 0.9)
-                dy = (k % 2) * rng.uniform(0.6, 0.75)
+                dx = (k // 2) * rng.uniform(0.65, 0.9)
+                dy = (k % 2) * rng.uniform(0.75, 0.85)
                 y = side * (yc + min(lateral + dy, sw - 0.35))
                 heading = (0.0 if v >= 0 else np.pi) if walking else rng.uniform(-np.pi, np.pi)
                 things.append(build(rng, "person", (x + dx, y, KERB), heading, (v, 0.0)))
@@ -139,7 +139,7 @@ def _sidewalk(rng, plan: StreetPlan, x_range, things: list[Thing]) -> None:
                     build(
                         rng,
                         cat,
-                        (x + k * rng.uniform(0.55, 0.8), y, KERB),
+                        (x + k * rng.uniform(0.7, 0.9), y, KERB),
                         np.pi / 2 + rng.normal(0, 0.05),
                     )
                 )
@@ -174,7 +174,7 @@ def _traffic(
                 )
                 things.append(thing)
                 x += thing.size[0] + rng.uniform(25.0, 90.0)
-        y = side * (plan.road_half - 0.45)
+        y = side * (plan.road_half - 0.6)
         for _ in range(rng.poisson((x1 - x0) / 70.0)):
             x = rng.uniform(x0, x1)
             moving = rng.random() < 0.75

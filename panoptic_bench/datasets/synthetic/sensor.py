@@ -181,7 +181,15 @@ def sweep(
     remission = reflect * (0.7 + 0.3 * cos_inc) * rng.normal(1.0, 0.08, idx.size)
     remission = np.clip(remission, 0.0, 0.99).astype(np.float32)
 
-    t = t + rough * rng.exponential(1.0, idx.size) + rng.normal(0.0, model.range_noise, idx.size)
+    t = (
+        t
+        + rough * rng.exponential(1.0, idx.size)
+        + np.clip(
+            rng.normal(0.0, model.range_noise, idx.size),
+            -2.5 * model.range_noise,
+            2.5 * model.range_noise,
+        )
+    )
     p_drop = model.dropout + 0.4 * np.clip(t / model.max_range, 0, 1) ** 2 * (remission < 0.1)
     keep = (rng.random(idx.size) >= p_drop) & (t >= model.min_range) & (t <= model.max_range)
     xyz = (dirs[idx] * t[:, None])[keep].astype(np.float32)

@@ -169,7 +169,7 @@ def _segment(
                     0.45,
                     rough=0.12,
                 )
-        if rng.random() < 0.5:
+        if rng.random() < 0.5 and x1 - x0 > 4.0:
             xp = rng.uniform(x0, x1 - 2.0)
             ys = sorted((side * y_front, side * back))
             gm.paint(xp, xp + 2.0, ys[0], ys[1], OTHER_GROUND, 0.28)
@@ -267,7 +267,9 @@ def build_street(
     for side in (-1, 1):
         x = x0
         while x < x1:
-            length = min(rng.uniform(15.0, 40.0), x1 - x)
+            length = rng.uniform(15.0, 40.0)
+            if x1 - (x + length) < 10.0:
+                length = x1 - x
             _segment(b, gm, rng, plan, side, x, x + length)
             x += length
     _furniture(b, rng, plan, x0, x1)
