@@ -1,0 +1,197 @@
+"""Dataset-agnostic result files of an evaluation: ``scores.txt``, ``scores.json``, ``per_class.csv``.
+
+``scores.json`` (fractions in [0, 1])::
+
+    {"all": {"PQ", "PQ_dagger", "SQ", "RQ", "PQ_th", "SQ_th", "RQ_th",
+             "PQ_st", "SQ_st", "RQ_st", "mIoU", "accuracy"},
+     "classes": {name: {"PQ", "SQ", "RQ", "IoU"}},
+     "by_range": [{"range": [lo, hi], "points": n, "all": {...}, "classes": {...}}, ...],
+     ...extra keys}
+
+``scores.txt`` holds the official codalab keys of semantic-kitti-api ``evaluate_panoptic.py`` as
+YAML (``pq_mean, pq_dagger, sq_mean, rq_mean, iou_mean, pq_stuff, rq_stuff, sq_stuff, pq_things,
+rq_things, sq_things``). ``per_class.csv``: ``class,kind,PQ,SQ,RQ,IoU`` (fractions, full precision).
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from panoptic_bench.errors import InputError
+from panoptic_bench.io import write_json, write_text
+from panoptic_bench.metrics.by_range import RangeStats
+from panoptic_bench.metrics.panoptic import PanopticResult
+
+__all__ = [
+    "CODALAB_KEYS",
+    "check_output_location",
+    "codalab_scores",
+    "percent_table",
+    "scores_dict",
+    "write_scores",
+]
+
+#: codalab key -> key of :meth:`PanopticResult.summary`
+CODALAB_KEYS: dict[str, str] = {
+    "pq_mean": "PQ",
+    "pq_dagger": "PQ_dagger",
+    "sq_mean": "SQ",
+    "rq_mean": "RQ",
+    "iou_mean": "mIoU",
+    "pq_stuff": "PQ_st",
+    "rq_stuff": "RQ_st",
+    "sq_stuff": "SQ_st",
+    "pq_things": "PQ_th",
+    "rq_things": "RQ_th",
+    "sq_things": "SQ_th",
+}
+
+
+def check_output_location(output: str | Path, inputs: Sequence[str | Path]) -> None:
+    """Raise :class:`InputError` if ``output`` is, or lies inside, one of ``inputs``.
+
+    Creates nothing: call it before a long computation, then
+    :func:`panoptic_bench.io.ensure_output_dir` when the results are ready.
+    """
+    out = Path(output).resolve()
+    for src in inputs:
+        src = Path(src).resolve()
+        if out == src or src in out.parents:
+            raise InputError(
+                f"output directory lies inside the input tree {src}; choose another --output",
+                output,
+            )
+    if out.exists() and not out.is_dir():
+        raise InputError("output exists and is not a directory", output)
+
+
+def _classes(result: PanopticResult, class_names, things, stuff) -> dict[str, dict[str, float]]:
+    """Per-class metrics, things first then stuff (the order of the official tables)."""
+    per = result.per_class(class_names)
+    return {class_names[c]: per[class_names[c]] for c in (*things, *stuff)}
+
+
+def scores_dict(
+    result: PanopticResult,
+    *,
+    class_names: Sequence[str],
+    things: Sequence[int],
+    stuff: Sequence[int],
+    by_range: RangeStats | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The ``scores.json`` structure (see the module docstring) as plain Python objects."""
+    scores: dict[str, Any] = {
+        "all": result.summary(things, stuff),
+        "classes": _classes(result, class_names, things, stuff),
+        "by_range": [],
+    }
+    if by_range is not None:
+        for (lo, hi, res), n in zip(by_range.compute(), by_range.point_counts()):
+            scores["by_range"].append(
+                {
+                    "range": [lo, hi],
+                    "points": n,
+                    "all": res.summary(things, stuff),
+                    "classes": _classes(res, class_names, things, stuff),
+                }
+            )
+    for key, value in (extra or {}).items():
+        if key in scores:
+            raise ValueError(f"extra key {key!r} would overwrite a scores.json entry")
+        scores[key] = value
+    return scores
+
+
+def codalab_scores(summary: Mapping[str, float]) -> dict[str, float]:
+    """The official ``scores.txt`` mapping from a :meth:`PanopticResult.summary` dict."""
+    return {key: float(summary[ours]) for key, ours in CODALAB_KEYS.items()}
+
+
+def percent_table(scores: Mapping[str, Any]) -> str:
+    """Human-readable tables in percent from a ``scores.json`` dict.
+
+    Returns
+    -------
+    str
+        Per-class PQ/SQ/RQ/IoU, the headline metrics and (if present) one row per range bin.
+    """
+    import pandas as pd
+
+    out = io.StringIO()
+    classes = pd.DataFrame.from_dict(scores["classes"], orient="index")
+    classes.index.name = "class"
+    out.write((100 * classes).to_string(float_format=lambda v: f"{v:6.2f}") + "\n\n")
+    summary = pd.DataFrame([scores["all"]], index=["all"])
+    rows = scores.get("by_range") or []
+    if rows:
+        bins = pd.DataFrame(
+            [r["all"] for r in rows],
+            index=[f"{r['range'][0]:g}-{r['range'][1]:g} m" for r in rows],
+        )
+        summary = pd.concat([summary, bins])
+        points = [None] + [r.get("points") for r in rows]
+        summary.insert(0, "points", pd.array(points, dtype="Int64"))
+    pct = summary.copy()
+    metric_cols = [c for c in pct.columns if c != "points"]
+    pct[metric_cols] = 100 * pct[metric_cols]
+    out.write(
+        pct.to_string(float_format=lambda v: f"{v:6.2f}", na_rep="", index_names=False) + "\n"
+    )
+    return out.getvalue()
+
+
+def write_scores(
+    out_dir: str | Path,
+    result: PanopticResult,
+    *,
+    class_names: Sequence[str],
+    things: Sequence[int],
+    stuff: Sequence[int],
+    by_range: RangeStats | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write ``scores.txt``, ``scores.json`` and ``per_class.csv`` atomically into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : path
+        An existing output directory (see :func:`panoptic_bench.io.ensure_output_dir`).
+    result : PanopticResult
+    class_names : sequence of str
+        Name of every class id.
+    things, stuff : sequence of int
+        Thing and stuff class ids (together the included classes).
+    by_range : RangeStats, optional
+        Per-range-bin accumulators, written under ``by_range``.
+    extra : mapping, optional
+        Additional top-level ``scores.json`` entries (e.g. ``{"n_scans": 4071}``).
+
+    Returns
+    -------
+    dict
+        The ``scores.json`` content.
+    """
+    out = Path(out_dir)
+    scores = scores_dict(
+        result,
+        class_names=class_names,
+        things=things,
+        stuff=stuff,
+        by_range=by_range,
+        extra=extra,
+    )
+    lines = ["class,kind,PQ,SQ,RQ,IoU"]
+    kinds = {class_names[c]: "thing" for c in things} | {class_names[c]: "stuff" for c in stuff}
+    for name, m in scores["classes"].items():
+        lines.append(f"{name},{kinds[name]},{m['PQ']!r},{m['SQ']!r},{m['RQ']!r},{m['IoU']!r}")
+    text = yaml.safe_dump(codalab_scores(scores["all"]), default_flow_style=False)
+    write_text(out / "scores.txt", text)
+    write_json(out / "scores.json", scores)
+    write_text(out / "per_class.csv", "\n".join(lines) + "\n")
+    return scores

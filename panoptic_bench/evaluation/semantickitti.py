@@ -1,0 +1,267 @@
+"""SemanticKITTI panoptic evaluation over a dataset tree (the official ``evaluate_panoptic.py``).
+
+Ground truth ``DATASET/sequences/XX/labels/NNNNNN.label`` is scored against
+``PREDICTIONS/sequences/XX/predictions/NNNNNN.label``. As in the official tool, both are mapped to
+train ids with ``learning_map`` and the **full uint32 label** is the instance id used for matching;
+class 0 is ignored. Unlike the official tool, every input is checked first: missing or extra
+prediction files, point counts, file sizes and unknown raw ids raise
+:class:`~panoptic_bench.errors.InputError` naming the file.
+
+Scans are scored in worker processes; the per-scan accumulators are summed in scan order, so the
+result does not depend on ``workers``.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from panoptic_bench.datasets import semantickitti as sk
+from panoptic_bench.errors import InputError
+from panoptic_bench.metrics.by_range import (
+    RangeStats,
+    panoptic_stats_by_range,
+    parse_edges,
+    point_range,
+)
+from panoptic_bench.metrics.panoptic import PanopticResult, PanopticStats, panoptic_stats
+
+__all__ = [
+    "SemanticKittiEvaluation",
+    "check_label_ids",
+    "evaluate_semantickitti",
+    "label_stats",
+    "prediction_problems",
+    "scan_point_count",
+]
+
+OFFICIAL_MIN_POINTS = 50
+
+
+def label_stats(
+    pred: np.ndarray,
+    gt: np.ndarray,
+    *,
+    min_points: int = OFFICIAL_MIN_POINTS,
+    ranges: np.ndarray | None = None,
+    edges: Sequence[float] | None = None,
+) -> tuple[PanopticStats, RangeStats | None]:
+    """Score one scan given as raw SemanticKITTI labels.
+
+    Parameters
+    ----------
+    pred, gt : array of shape (n_points,), uint32
+        Full labels (low 16 bits raw semantic id, high 16 bits instance id).
+    min_points : int
+        Minimum size of an unmatched segment to count as FP / FN (official CLI: 50).
+    ranges : array of shape (n_points,), float, optional
+        Point ranges, needed with ``edges``.
+    edges : sequence of float, optional
+        Range-bin edges for per-bin statistics.
+
+    Returns
+    -------
+    (PanopticStats, RangeStats or None)
+    """
+    sp, sg = sk.to_train(pred), sk.to_train(gt)
+    kw = {"num_classes": sk.LABELS.num_classes, "ignore": sk.LABELS.ignore_ids}
+    stats = panoptic_stats(sp, pred, sg, gt, min_points=min_points, **kw)
+    if edges is None:
+        return stats, None
+    if ranges is None:
+        raise ValueError("ranges are needed for per-range statistics")
+    return stats, panoptic_stats_by_range(
+        sp, pred, sg, gt, ranges, edges, min_points=min_points, **kw
+    )
+
+
+def scan_point_count(path: Path) -> int:
+    """Number of points of a ``.bin`` scan from its size (checked to be a multiple of 16)."""
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise InputError("scan file not found", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read scan file ({exc.strerror})", path) from None
+    if size % 16:
+        raise InputError(
+            f"scan file size {size} is not a multiple of 16 bytes (float32 x, y, z, remission); "
+            "the file is truncated or not a SemanticKITTI scan",
+            path,
+        )
+    return size // 16
+
+
+def check_label_ids(labels: np.ndarray, n_points: int, path: Path, what: str) -> None:
+    """Raise :class:`InputError` unless ``labels`` has ``n_points`` entries of known raw ids."""
+    if len(labels) != n_points:
+        raise InputError(
+            f"{what} has {len(labels)} labels but the scan has {n_points} points", path
+        )
+    bad = ~sk.LABELS.valid_raw[labels & 0xFFFF]
+    if bad.any():
+        ids = np.unique(labels[bad] & 0xFFFF)
+        shown = ", ".join(str(i) for i in ids[:8]) + (" ..." if len(ids) > 8 else "")
+        raise InputError(
+            f"{what} holds {int(bad.sum())} points with unknown raw label ids ({shown}); "
+            "write raw SemanticKITTI ids (e.g. 10 car, 40 road), not train ids 0-19 "
+            "('panoptic-bench semantickitti remap --inverse' converts them)",
+            path,
+        )
+
+
+def prediction_problems(
+    refs: Sequence[sk.ScanRef], predictions: str | Path
+) -> tuple[list[str], list[str]]:
+    """Missing and extra prediction files of ``refs`` (as ``"path: message"`` strings)."""
+    missing, extra = [], []
+    wanted = {sk.prediction_path(predictions, r) for r in refs}
+    for pred in sorted(wanted):
+        if not pred.is_file():
+            missing.append(f"{pred}: prediction file missing")
+    for pred_dir in sorted({p.parent for p in wanted}):
+        if not pred_dir.is_dir():
+            continue
+        try:
+            names = sorted(p.name for p in pred_dir.iterdir())
+        except OSError as exc:
+            missing.append(f"{pred_dir}: cannot read directory ({exc.strerror or exc})")
+            continue
+        for name in names:
+            if pred_dir / name not in wanted:
+                extra.append(
+                    f"{pred_dir / name}: extra file, no scan velodyne/{Path(name).stem}.bin "
+                    "in the dataset"
+                )
+    return missing, extra
+
+
+@dataclass(frozen=True)
+class _Job:
+    ref: sk.ScanRef
+    pred: Path
+    min_points: int
+    edges: tuple[float, ...] | None
+
+
+def _score(job: _Job) -> tuple[PanopticStats, RangeStats | None]:
+    n = scan_point_count(job.ref.scan)
+    gt = sk.read_labels(job.ref.label)
+    check_label_ids(gt, n, job.ref.label, "ground truth")
+    pred = sk.read_labels(job.pred)
+    check_label_ids(pred, n, job.pred, "prediction")
+    ranges = None if job.edges is None else point_range(sk.read_scan(job.ref.scan))
+    return label_stats(pred, gt, min_points=job.min_points, ranges=ranges, edges=job.edges)
+
+
+@dataclass(frozen=True)
+class SemanticKittiEvaluation:
+    """Accumulated statistics of a SemanticKITTI evaluation."""
+
+    stats: PanopticStats
+    by_range: RangeStats | None
+    n_scans: int
+    sequences: tuple[str, ...]
+
+    def result(self) -> PanopticResult:
+        """Per-class and mean metrics."""
+        return self.stats.compute()
+
+
+def evaluate_semantickitti(
+    dataset: str | Path,
+    predictions: str | Path,
+    *,
+    split: str | None = "valid",
+    sequences: Sequence[int | str] | None = None,
+    min_points: int = OFFICIAL_MIN_POINTS,
+    workers: int = 1,
+    by_range: Sequence[float] | None = None,
+    progress: bool | None = None,
+) -> SemanticKittiEvaluation:
+    """Score a prediction tree against a SemanticKITTI dataset tree.
+
+    Parameters
+    ----------
+    dataset : path
+        Root with ``sequences/XX/{velodyne,labels}``.
+    predictions : path
+        Root with ``sequences/XX/predictions/NNNNNN.label`` (raw ids, full labels).
+    split : {"train", "valid", "test"}, optional
+        Sequences of the split (ignored when ``sequences`` is given).
+    sequences : sequence of int or str, optional
+        Explicit sequence numbers.
+    min_points : int
+        Minimum size of an unmatched segment to count (official CLI default 50).
+    workers : int
+        Worker processes (1 = in this process).
+    by_range : sequence of float, optional
+        Range-bin edges in metres for per-bin metrics.
+    progress : bool or None
+        Progress bar (None: only on a terminal).
+
+    Returns
+    -------
+    SemanticKittiEvaluation
+
+    Raises
+    ------
+    InputError
+        Any missing, extra or malformed file; the message names it.
+    """
+    if workers < 1:
+        raise InputError(f"--workers must be >= 1, got {workers}")
+    if min_points < 0:
+        raise InputError(f"--min-inst-points must be >= 0, got {min_points}")
+    edges = None
+    if by_range is not None:
+        try:
+            edges = parse_edges(by_range)
+        except ValueError as exc:
+            raise InputError(f"--by-range: {exc}") from None
+    refs = sk.list_scans(dataset, split=split, sequences=sequences)
+    missing, extra = prediction_problems(refs, predictions)
+    for problems in (missing, extra):
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            hint = "; 'panoptic-bench validate semantickitti' lists every problem"
+            raise InputError(problems[0] + more + hint)
+
+    jobs = [_Job(r, sk.prediction_path(predictions, r), min_points, edges) for r in refs]
+    C, ignore = sk.LABELS.num_classes, sk.LABELS.ignore_ids
+    stats = PanopticStats.zeros(C, ignore)
+    ranges = None if edges is None else RangeStats.zeros(edges, C, ignore)
+    bar = tqdm(total=len(jobs), desc="SemanticKITTI", unit="scan", disable=_disable(progress))
+    pool = None
+    if workers > 1 and len(jobs) > 1:
+        pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=_context())
+        results = pool.map(_score, jobs, chunksize=max(1, len(jobs) // (8 * workers)))
+    else:
+        results = map(_score, jobs)
+    try:
+        for s, r in results:  # scan order: identical sums for any number of workers
+            stats = stats + s
+            if ranges is not None:
+                ranges = ranges + r
+            bar.update()
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    seqs = tuple(sorted({r.sequence for r in refs}))
+    return SemanticKittiEvaluation(stats, ranges, len(jobs), seqs)
+
+
+def _disable(progress: bool | None) -> bool | None:
+    return None if progress is None else not progress
+
+
+def _context() -> mp.context.BaseContext:
+    methods = mp.get_all_start_methods()
+    return mp.get_context("fork" if "fork" in methods else "spawn")
