@@ -83,19 +83,28 @@ class GridConfig:
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Backbone width and head sizes (the class count comes from the data)."""
+    """Backbone width and head sizes (the class count comes from the data).
+
+    ``point_hidden`` / ``point_feature_dim``: per-point MLP before max-pooling into voxels;
+    ``voxel_feature_dim``: compressed voxel features entering the U-Net; ``offset_hidden``:
+    hidden width of the offset MLP (DS-Net: ``init_size``). The per-point features handed to
+    dynamic shifting have ``init_size`` channels.
+    """
 
     init_size: int = 32
+    point_hidden: tuple[int, ...] = (64, 128, 256)
     point_feature_dim: int = 256
     voxel_feature_dim: int = 16
-    offset_hidden: int = 128
+    offset_hidden: int = 32
 
     def validate(self) -> list[str]:
-        return [
-            f"model.{f.name} must be >= 1, got {getattr(self, f.name)}"
-            for f in dataclasses.fields(self)
-            if getattr(self, f.name) < 1
+        names = ("init_size", "point_feature_dim", "voxel_feature_dim", "offset_hidden")
+        problems = [
+            f"model.{n} must be >= 1, got {getattr(self, n)}" for n in names if getattr(self, n) < 1
         ]
+        if not self.point_hidden or min(self.point_hidden) < 1:
+            problems.append(f"model.point_hidden must be positive widths, got {self.point_hidden}")
+        return problems
 
 
 @dataclass(frozen=True)

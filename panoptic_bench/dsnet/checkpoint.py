@@ -1,0 +1,180 @@
+"""DS-Net checkpoints: build the networks from a config, save and load training state.
+
+A checkpoint is one ``torch.save`` file holding only builtins and tensors (loadable with
+``weights_only=True``)::
+
+    {"format": "panoptic-bench-dsnet/1", "stage": "semantic" | "offset" | "ds",
+     "epoch": completed epochs of that stage, "config": DSNetConfig.to_dict(),
+     "class_map": ClassMap.to_dict(), "class_weights": [float] | None,
+     "backbone": state_dict, "shift": state_dict | None,
+     "optimizer": state_dict | None, "rng": {"torch": ByteTensor} | None,
+     "metrics": [per-epoch dict, ...]}
+
+:func:`export_checkpoint` drops the optimizer and RNG state for a small release file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from panoptic_bench.dsnet.config import DSNetConfig
+from panoptic_bench.dsnet.data import ClassMap
+from panoptic_bench.errors import InputError
+from panoptic_bench.io import atomic_open
+
+FORMAT = "panoptic-bench-dsnet/1"
+STAGES = ("semantic", "offset", "ds")
+
+__all__ = [
+    "Checkpoint",
+    "FORMAT",
+    "STAGES",
+    "build_backbone",
+    "build_grid",
+    "build_shift",
+    "export_checkpoint",
+    "load_checkpoint",
+    "save_checkpoint",
+]
+
+
+def build_grid(cfg: DSNetConfig) -> Any:
+    """The cylindrical grid of the config (``voxelize.CylinderGrid``)."""
+    from panoptic_bench.dsnet.voxelize import CylinderGrid
+
+    g = cfg.grid
+    return CylinderGrid(
+        size=g.size, rho_range=g.rho_range, phi_range_deg=g.phi_range_deg, z_range=g.z_range
+    )
+
+
+def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
+    """The Cylinder3D backbone with semantic and offset heads, from explicit config values."""
+    from panoptic_bench.dsnet.model import PanopticBackbone
+
+    m = cfg.model
+    return PanopticBackbone(
+        num_classes=num_classes,
+        init_size=m.init_size,
+        grid=build_grid(cfg),
+        point_hidden=m.point_hidden,
+        point_feature_dim=m.point_feature_dim,
+        voxel_feature_dim=m.voxel_feature_dim,
+        offset_hidden=m.offset_hidden,
+    )
+
+
+def build_shift(cfg: DSNetConfig, feature_dim: int) -> nn.Module:
+    """The dynamic shifting module of the config's ``dynamic_shift`` section."""
+    from panoptic_bench.dsnet.dynamic_shift import DynamicShift
+
+    d = cfg.dynamic_shift
+    return DynamicShift(
+        feature_dim,
+        bandwidths=d.bandwidths,
+        iterations=d.iterations,
+        kernel=d.kernel.value,
+    )
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint (see the module docstring for the stored fields)."""
+
+    stage: str
+    epoch: int
+    config: DSNetConfig
+    class_map: ClassMap
+    backbone: dict[str, torch.Tensor]
+    shift: dict[str, torch.Tensor] | None = None
+    optimizer: dict | None = None
+    rng: dict | None = None
+    class_weights: list[float] | None = None
+    metrics: list[dict] = field(default_factory=list)
+    path: Path | None = None
+
+    @property
+    def has_shift(self) -> bool:
+        """True for a DS-Net (stage ``ds``) checkpoint."""
+        return self.shift is not None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT,
+            "stage": self.stage,
+            "epoch": self.epoch,
+            "config": self.config.to_dict(),
+            "class_map": self.class_map.to_dict(),
+            "class_weights": self.class_weights,
+            "backbone": self.backbone,
+            "shift": self.shift,
+            "optimizer": self.optimizer,
+            "rng": self.rng,
+            "metrics": self.metrics,
+        }
+
+
+def save_checkpoint(ckpt: Checkpoint, path: str | Path) -> None:
+    """Atomically write ``ckpt`` to ``path``."""
+    with atomic_open(path, "wb") as fh:
+        torch.save(ckpt.to_dict(), fh)
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> Checkpoint:
+    """Read a checkpoint written by :func:`save_checkpoint`.
+
+    Raises
+    ------
+    InputError
+        Missing file, not a panoptic-bench DS-Net checkpoint, or an invalid stored config.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("checkpoint not found; train one with `panoptic-bench train`", path)
+    try:
+        raw = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unpickling failure is a user-file problem
+        raise InputError(f"cannot read checkpoint ({type(exc).__name__}: {exc})", path) from None
+    if not isinstance(raw, dict) or raw.get("format") != FORMAT:
+        raise InputError(f"not a panoptic-bench DS-Net checkpoint (format {FORMAT})", path)
+    return Checkpoint(
+        stage=raw["stage"],
+        epoch=int(raw["epoch"]),
+        config=DSNetConfig.from_dict(raw["config"], source=path),
+        class_map=ClassMap.from_dict(raw["class_map"]),
+        backbone=raw["backbone"],
+        shift=raw.get("shift"),
+        optimizer=raw.get("optimizer"),
+        rng=raw.get("rng"),
+        class_weights=raw.get("class_weights"),
+        metrics=list(raw.get("metrics") or []),
+        path=path,
+    )
+
+
+def export_checkpoint(src: str | Path, dst: str | Path, half: bool = False) -> Path:
+    """Copy a checkpoint without optimizer and RNG state (a release file for inference).
+
+    Parameters
+    ----------
+    half : bool
+        Store floating-point weights as float16 (they are cast back to float32 on load by
+        ``load_state_dict``); halves the size.
+    """
+    ckpt = load_checkpoint(src)
+    ckpt.optimizer = None
+    ckpt.rng = None
+    if half:
+        ckpt.backbone = _half(ckpt.backbone)
+        ckpt.shift = None if ckpt.shift is None else _half(ckpt.shift)
+    save_checkpoint(ckpt, dst)
+    return Path(dst)
+
+
+def _half(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    return {k: v.half() if v.is_floating_point() else v for k, v in state.items()}

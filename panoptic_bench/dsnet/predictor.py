@@ -1,0 +1,221 @@
+"""DS-Net prediction of one scan, and scoring a dataset with the metric core.
+
+:class:`Predictor` turns one scan into semantic train ids and instance ids:
+
+1. backbone → per-point logits, offsets, features; predicted class = argmax over the non-ignored
+   classes; thing points = points of a predicted thing class;
+2. regressed centres ``xyz + offset`` of the thing points are clustered by
+   - the dynamic shifting module (DS-Net checkpoint, unless a clusterer is given): FPS seeds are
+     shifted, the converged seeds clustered (``inference.ds_clusterer``), every thing point takes
+     the instance of its nearest seed;
+   - otherwise a heuristic clusterer (``inference.clusterer``, default mean shift 1.2), which
+     receives exactly the same regressed centres;
+3. consensus fusion (majority vote of the semantic class inside every instance), unless disabled.
+   "Backbone with Fusion" = mean shift 1.2 + fusion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from panoptic_bench.dsnet import distributed as ddp
+from panoptic_bench.dsnet.checkpoint import build_grid
+from panoptic_bench.dsnet.config import Clusterer, DSNetConfig
+from panoptic_bench.dsnet.data import ClassMap, LidarDataset, LidarSample
+from panoptic_bench.dsnet.pipeline import backbone_forward
+
+__all__ = ["Predictor", "ScanPrediction", "evaluate_dataset", "make_clusterer"]
+
+
+@dataclass
+class ScanPrediction:
+    """Prediction of one scan.
+
+    Attributes
+    ----------
+    sem : ndarray of shape (n,), int64
+        Train ids (after fusion when enabled).
+    inst : ndarray of shape (n,), int64
+        Instance ids (1..K on thing points, 0 elsewhere).
+    sem_raw : ndarray of shape (n,), uint8
+        Backbone semantic prediction before fusion.
+    offsets : ndarray of shape (n,), float32 of shape (n, 3)
+        Regressed offsets (centre = xyz + offset).
+    features : ndarray of shape (n, F), float16 or None
+        Backbone point features (kept only when asked for).
+    shift : dict of str to ndarray, optional
+        DS-Net diagnostics: ``seed_index`` (M,), ``weights`` (I, M, l), ``bandwidth`` (I, M),
+        ``trajectory`` (I + 1, M, 3), ``bandwidths`` (l,).
+    """
+
+    sem: np.ndarray
+    inst: np.ndarray
+    sem_raw: np.ndarray
+    offsets: np.ndarray
+    features: np.ndarray | None = None
+    shift: dict[str, np.ndarray] | None = field(default=None)
+
+
+def make_clusterer(kind: Clusterer, bandwidth: float) -> Any:
+    """A heuristic clusterer of ``panoptic_bench.baselines`` with its scale parameter set.
+
+    ``bandwidth`` is the mean-shift bandwidth (bin seeding, as DS-Net's code), the BFS radius,
+    or DBSCAN's ``eps`` (metres); HDBSCAN has no scale parameter and ignores it.
+    """
+    from panoptic_bench.baselines.clustering import make_clusterer as make
+
+    scale = {
+        Clusterer.MEANSHIFT: {"bandwidth": bandwidth, "bin_seeding": True},
+        Clusterer.BFS: {"radius": bandwidth},
+        Clusterer.DBSCAN: {"eps": bandwidth},
+        Clusterer.HDBSCAN: {},
+    }[kind]
+    return make(kind.value, **scale)
+
+
+class Predictor:
+    """Backbone (+ dynamic shifting) → panoptic prediction of one scan.
+
+    Parameters
+    ----------
+    backbone : nn.Module
+    shift : nn.Module or None
+        Dynamic shifting module; used unless ``clusterer`` is given.
+    cfg : DSNetConfig
+    class_map : ClassMap
+    device : torch.device
+    clusterer : estimator with ``fit_predict``, optional
+        Replaces dynamic shifting / the config's clusterer; receives the same regressed centres.
+    fusion : bool, optional
+        Consensus fusion (default ``cfg.inference.fusion``).
+    keep_features : bool
+        Return the point features (for the ``.npz`` exchange file).
+    """
+
+    def __init__(
+        self,
+        backbone: nn.Module,
+        shift: nn.Module | None,
+        cfg: DSNetConfig,
+        class_map: ClassMap,
+        device: torch.device | str = "cpu",
+        clusterer: Any = None,
+        fusion: bool | None = None,
+        keep_features: bool = False,
+    ) -> None:
+        self.backbone = backbone
+        self.shift = shift if clusterer is None else None
+        self.cfg = cfg
+        self.class_map = class_map
+        self.device = torch.device(device)
+        inf = cfg.inference
+        self.clusterer = clusterer or make_clusterer(inf.clusterer, inf.bandwidth)
+        self.fusion = inf.fusion if fusion is None else fusion
+        self.keep_features = keep_features
+        self.grid = build_grid(cfg)
+        self._things = class_map.thing_lut()
+        self._ignored = list(class_map.ignore_ids)
+
+    @torch.no_grad()
+    def predict(self, sample: LidarSample, panoptic: bool = True) -> ScanPrediction:
+        """Predict one scan; ``panoptic=False`` skips clustering (instances all 0)."""
+        from panoptic_bench.baselines.panoptic import assemble_panoptic
+
+        self.backbone.eval()
+        out = backbone_forward(self.backbone, [sample], self.grid, self.device)
+        logits = out.sem_logits.clone()
+        logits[:, self._ignored] = -torch.inf
+        sem = logits.argmax(1).cpu().numpy().astype(np.int64)
+        offsets = out.offsets.float().cpu().numpy()
+        fused, inst, diag = sem, np.zeros(len(sem), dtype=np.int64), None
+        if panoptic and self.shift is None:
+            fused, inst = assemble_panoptic(
+                sample.xyz,
+                sem,
+                offsets,
+                self.clusterer,
+                thing_ids=self.class_map.thing_ids,
+                min_points=self.cfg.inference.min_points,
+                fusion=self.fusion,
+                num_classes=self.class_map.num_classes,
+            )
+        elif panoptic:
+            fused, inst, diag = self._dynamic_shift(sample, sem, offsets, out.point_features)
+        feats = out.point_features.half().cpu().numpy() if self.keep_features else None
+        return ScanPrediction(
+            np.asarray(fused, dtype=np.int64),
+            np.asarray(inst, dtype=np.int64),
+            sem.astype(np.uint8),
+            offsets,
+            feats,
+            diag,
+        )
+
+    def _dynamic_shift(self, sample, sem, offsets, features):
+        """DS path: shift FPS seeds, cluster them, nearest seed → instance, then fusion."""
+        from panoptic_bench.baselines.panoptic import consensus_fusion, filter_small_instances
+        from panoptic_bench.dsnet.pipeline import ds_cluster
+
+        inst = np.zeros(len(sem), dtype=np.int64)
+        things = np.flatnonzero(self._things[sem])
+        if not len(things):
+            return sem, inst, None
+        self.shift.eval()
+        labels, diag = ds_cluster(
+            self.shift,
+            points=sample.xyz[things],
+            centers=sample.xyz[things] + offsets[things],
+            features=features[torch.from_numpy(things).to(features.device)],
+            cfg=self.cfg,
+        )
+        _, dense = np.unique(np.asarray(labels), return_inverse=True)
+        inst[things] = filter_small_instances(dense.reshape(-1), self.cfg.inference.min_points)
+        fused = consensus_fusion(sem, inst, self.class_map.num_classes) if self.fusion else sem
+        return fused, inst, diag
+
+
+def evaluate_dataset(
+    predictor: Predictor,
+    dataset: LidarDataset,
+    *,
+    indices: list[int] | None = None,
+    panoptic: bool = True,
+    info: ddp.DistInfo | None = None,
+    progress: bool = True,
+) -> dict[str, float]:
+    """Score ``predictor`` on ``dataset`` (the samples ``indices`` of this rank).
+
+    Returns the headline numbers of :meth:`PanopticResult.summary` (fractions), summed over
+    every rank when distributed.
+    """
+    from tqdm import tqdm
+
+    from panoptic_bench.metrics.panoptic import panoptic_stats
+
+    info = info or ddp.DistInfo()
+    cmap = predictor.class_map
+    indices = list(range(len(dataset))) if indices is None else indices
+    stats = []
+    for i in tqdm(indices, desc="validate", disable=not progress, leave=False):
+        sample = dataset.load(i)
+        pred = predictor.predict(sample, panoptic=panoptic)
+        stats.append(
+            panoptic_stats(
+                pred.sem,
+                pred.inst,
+                sample.sem,
+                sample.inst,
+                num_classes=cmap.num_classes,
+                ignore=cmap.ignore_ids,
+                min_points=predictor.cfg.inference.min_points,
+            )
+        )
+    total = ddp.reduce_sum(stats, info)
+    if total is None:
+        return {}
+    return total.compute().summary(cmap.thing_ids, cmap.stuff_ids)
