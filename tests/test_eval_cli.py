@@ -277,7 +277,7 @@ def test_validate_lists_every_problem(tmp_path: Path, capsys) -> None:
     args = ["validate", "semantickitti", "--dataset", str(data), "--predictions", str(pred)]
     assert main(args) == 2
     err = capsys.readouterr().err
-    assert "6 problems in 6 scans" in err
+    assert "validation of 6 scans found problems (6)" in err
     for p in broken:
         assert str(p) in err
     shutil.rmtree(tmp_path)
@@ -293,7 +293,7 @@ def test_validate_empty_sequence_and_unreadable(tmp_path: Path, capsys) -> None:
     assert main([*args, "--sequences", "08,09,10"]) == 2
     err = capsys.readouterr().err
     assert "empty sequence" in err and "sequences/10: sequence directory not found" in err
-    assert "2 problems in 1 scans" in err
+    assert "validation of 1 scans found problems (2)" in err
 
 
 # --------------------------------------------------------------------------- remap

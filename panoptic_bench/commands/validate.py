@@ -32,6 +32,6 @@ def run(args: argparse.Namespace) -> int:
         args.dataset, args.predictions, split=args.split, sequences=args.sequences
     )
     if problems:
-        raise InputErrors(problems, header=f"{len(problems)} problems in {n} scans")
+        raise InputErrors(problems, header=f"validation of {n} scans found problems")
     print(f"OK: {n} scans, every prediction present with one valid label per point")
     return 0
