@@ -135,16 +135,26 @@ class OptimConfig:
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    """Training augmentation (Cylinder3D / DS-Net defaults)."""
+    """Training augmentation (Cylinder3D / DS-Net defaults).
+
+    ``max_points`` > 0 keeps a random subset of at most that many points of each training scan
+    (a CPU speed-up; 0 keeps every point, as the paper).
+    """
 
     rotate: bool = True
     flip: bool = True
     scale_range: tuple[float, float] = (0.95, 1.05)
     translate_std: tuple[float, float, float] = (0.1, 0.1, 0.1)
+    max_points: int = 0
 
     def validate(self) -> list[str]:
         lo, hi = self.scale_range
-        return [] if 0 < lo <= hi else [f"augment.scale_range must be 0 < lo <= hi, got {[lo, hi]}"]
+        problems = (
+            [] if 0 < lo <= hi else [f"augment.scale_range must be 0 < lo <= hi, got {[lo, hi]}"]
+        )
+        if self.max_points < 0:
+            problems.append("augment.max_points must be >= 0 (0 = keep every point)")
+        return problems
 
 
 @dataclass(frozen=True)

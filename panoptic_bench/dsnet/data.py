@@ -338,6 +338,15 @@ class TrainingSet:
         sample = self.dataset.load(index)
         if self.augment is not None:
             rng = np.random.default_rng([self.seed, self.epoch, index])
+            if 0 < self.augment.max_points < len(sample.xyz):
+                keep = np.sort(rng.choice(len(sample.xyz), self.augment.max_points, replace=False))
+                sample = LidarSample(
+                    sample.xyz[keep],
+                    sample.remission[keep],
+                    sample.sem[keep],
+                    sample.inst[keep],
+                    sample.key,
+                )
             sample.xyz = augment_points(sample.xyz, self.augment, rng)
         return sample
 
