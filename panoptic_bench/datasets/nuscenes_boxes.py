@@ -86,21 +86,25 @@ def _devkit_mask(frames: BoxFrames, b: int, points_t: np.ndarray) -> np.ndarray:
 
 
 def _grid_candidates(
-    xy: np.ndarray, finite: np.ndarray, centres: np.ndarray, radius: np.ndarray
+    x: np.ndarray, y: np.ndarray, idx: np.ndarray | None, centres: np.ndarray, radius: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(box, point) pairs whose point lies in the grid cells covering each box's bounding square."""
-    idx_finite = np.flatnonzero(finite)
-    pxy = xy[idx_finite]
-    if len(pxy) == 0 or len(centres) == 0:
+    """(box, point) pairs whose point lies in the grid cells covering each box's bounding square.
+
+    ``x``, ``y``: float64 coordinates of the finite points, ``idx`` their indices (None: all).
+    Pairs come grouped by box.
+    """
+    if len(x) == 0 or len(centres) == 0:
         return np.empty(0, np.intp), np.empty(0, np.intp)
-    lo = pxy.min(axis=0)
-    cell = max(float((pxy.max(axis=0) - lo).max()) / _GRID, 1e-3)
+    lo = np.array([x.min(), y.min()])
+    cell = max(max(x.max() - lo[0], y.max() - lo[1]) / _GRID, 1e-3)
 
     def cell_of(v: np.ndarray, axis: int) -> np.ndarray:
         return np.clip(np.floor((v - lo[axis]) / cell), 0, _GRID - 1).astype(np.intp)
 
-    key = (cell_of(pxy[:, 0], 0) * _GRID + cell_of(pxy[:, 1], 1)).astype(np.uint16)
-    order = idx_finite[np.argsort(key, kind="stable")]
+    key = (cell_of(x, 0) * _GRID + cell_of(y, 1)).astype(np.uint16)
+    order = np.argsort(key, kind="stable")
+    if idx is not None:
+        order = idx[order]
     starts = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=_GRID * _GRID))])
     x0, x1 = cell_of(centres[:, 0] - radius, 0), cell_of(centres[:, 0] + radius, 0)
     y0, y1 = cell_of(centres[:, 1] - radius, 1), cell_of(centres[:, 1] + radius, 1)
@@ -136,21 +140,29 @@ def points_in_boxes(
     n_boxes = len(frames)
     if n_boxes == 0 or len(points) == 0:
         return np.empty(0, np.intp), np.empty(0, np.intp)
-    xyz = points[:, :3].astype(np.float64)
-    finite = np.isfinite(xyz).all(axis=1)
+    cols = [np.ascontiguousarray(points[:, k], dtype=np.float64) for k in range(3)]
+    finite = np.isfinite(cols[0]) & np.isfinite(cols[1]) & np.isfinite(cols[2])
+    idx = None if finite.all() else np.flatnonzero(finite)
+    if idx is not None:
+        cols = [col[idx] for col in cols]
     centres, rot = boxes_in_sensor_frame(frames)
     half = np.abs(frames.size[:, [1, 0, 2]]) / 2  # local x: l, y: w, z: h
     if tol is None:
-        scale = max(np.abs(frames.translation).max(), np.abs(xyz[finite]).max(initial=0.0))
+        scale = max([np.abs(frames.translation).max()] + [np.abs(c).max(initial=0.0) for c in cols])
         tol = 1e-6 * max(1.0, scale / 1000.0)
     radius = np.linalg.norm(half, axis=1) + 2 * tol
-    bi, pi = _grid_candidates(xyz[:, :2], finite, centres, radius)
-    d = xyz[pi] - centres[bi]
-    r = rot[bi]  # columns are the box axes in the sensor frame
-    local = np.abs(np.einsum("nij,ni->nj", r, d))
-    lim = half[bi]
-    sure_in = (local <= lim - tol).all(axis=1)
-    unsure = ~sure_in & ~(local > lim + tol).any(axis=1)
+    bi, pi = _grid_candidates(cols[0], cols[1], idx, centres, radius)
+    # candidates come grouped by box: expand per-box values with repeat, not fancy indexing
+    per_box = np.bincount(bi, minlength=n_boxes)
+    local_pi = pi if idx is None else np.searchsorted(idx, pi)
+    d = [cols[k][local_pi] - np.repeat(centres[:, k], per_box) for k in range(3)]
+    worst = None
+    for j in range(3):  # |local_j| - half_j, local = R^T d (columns of R are the box axes)
+        r = [np.repeat(rot[:, i, j], per_box) for i in range(3)]
+        e = np.abs(d[0] * r[0] + d[1] * r[1] + d[2] * r[2]) - np.repeat(half[:, j], per_box)
+        worst = e if worst is None else np.maximum(worst, e)
+    sure_in = worst <= -tol
+    unsure = ~sure_in & (worst <= tol)
     exact_boxes = np.unique(bi[unsure])
     keep = sure_in & ~np.isin(bi, exact_boxes)
     bi, pi = bi[keep], pi[keep]
@@ -159,5 +171,5 @@ def points_in_boxes(
         extra = [np.flatnonzero(_devkit_mask(frames, int(b), points_t)) for b in exact_boxes]
         bi = np.concatenate([bi, np.repeat(exact_boxes, [len(e) for e in extra])])
         pi = np.concatenate([pi, *extra])
-    order = np.lexsort((pi, bi))
+    order = np.argsort(bi.astype(np.int64) * len(points) + pi)
     return bi[order], pi[order]
