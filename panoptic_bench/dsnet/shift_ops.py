@@ -24,9 +24,9 @@ from scipy.spatial import cKDTree
 
 #: Grid cell size of :func:`ball_sums` as a fraction of the radius (measured best on
 #: LiDAR-like seeds: smaller cells mean more cell pairs, larger ones more boundary seeds).
-CELL_FRACTION = 0.5
+CELL_FRACTION = 1.0
 #: Nested grid levels of :func:`ball_sums` above the seeds.
-LEVELS = 3
+LEVELS = 4
 
 
 def ragged_arange(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
