@@ -1,0 +1,266 @@
+"""Data, regression and clustering steps of the demo, one small function per stage.
+
+Every step reads and writes ordinary dataset / prediction trees, the same files the CLI
+commands read and write, so each can be replaced by the command named in its docstring.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from panoptic_bench.demo.config import ClusteringSpec, DemoSize
+
+__all__ = [
+    "KITTI_TRAIN",
+    "KITTI_VAL",
+    "NUS_EVAL_SET",
+    "NUS_VERSION",
+    "Workspace",
+    "build_nuscenes_labels",
+    "cluster_nuscenes_centres",
+    "cluster_semantickitti_centres",
+    "dsnet_regression",
+    "find_checkpoint",
+    "simulate_nuscenes_centres",
+    "simulate_semantickitti_centres",
+    "synthesize_nuscenes",
+    "synthesize_semantickitti",
+]
+
+KITTI_TRAIN = "00"
+KITTI_VAL = "08"
+NUS_VERSION = "v1.0-mini"
+NUS_EVAL_SET = "mini_val"
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Where the demo writes.
+
+    Attributes
+    ----------
+    out : Path
+        The report directory (``index.md``, ``tables/``, ``figures/``, ``runs/``).
+    work : Path
+        Generated data: datasets, regressed centres, predictions (never in git).
+    work_label : str
+        How ``work`` is written in recorded commands (``$WORK`` for a temporary directory, so
+        that committed ``run.json`` files do not depend on where the demo ran).
+    """
+
+    out: Path
+    work: Path
+    work_label: str = ""
+
+    def show(self, path: Path) -> str:
+        """``path`` as written in recorded commands (see ``work_label``)."""
+        path = Path(path)
+        if self.work_label and path.is_relative_to(self.work):
+            return f"{self.work_label}/{path.relative_to(self.work).as_posix()}"
+        return path.as_posix()
+
+    @property
+    def runs(self) -> Path:
+        """``out/runs``: one run directory per method (``scores.json``, ``run.json``)."""
+        return self.out / "runs"
+
+    @property
+    def kitti(self) -> Path:
+        """The synthetic SemanticKITTI-format root."""
+        return self.work / "semantickitti"
+
+    @property
+    def nuscenes(self) -> Path:
+        """The synthetic nuScenes-format dataroot."""
+        return self.work / "nuscenes"
+
+    def centres(self, name: str) -> Path:
+        """Root of one set of regressed-centre files."""
+        return self.work / "centers" / name
+
+    def predictions(self, name: str) -> Path:
+        """Root of one prediction tree."""
+        return self.work / "predictions" / name
+
+
+# --------------------------------------------------------------------------- data
+
+
+def synthesize_semantickitti(ws: Workspace, size: DemoSize) -> Path:
+    """Synthetic HDL-64E sequences ``00`` (train) and ``08`` (val) in the SemanticKITTI layout.
+
+    Same as ``panoptic-bench synth semantickitti --sequences 00:T,08:V --seed S``.
+    """
+    from panoptic_bench.datasets.synthetic.writers import generate_semantickitti
+
+    seqs = {KITTI_TRAIN: size.train_frames, KITTI_VAL: size.val_frames}
+    return generate_semantickitti(ws.kitti, seqs, seed=size.seed, overwrite=True)
+
+
+def synthesize_nuscenes(ws: Workspace, size: DemoSize) -> Path:
+    """Synthetic HDL-32E scenes as a ``v1.0-mini`` nuScenes dataroot (lidarseg + boxes).
+
+    Same as ``panoptic-bench synth nuscenes --scenes N --samples K --seed S``.
+    """
+    from panoptic_bench.datasets.synthetic.writers import generate_nuscenes
+
+    return generate_nuscenes(
+        ws.nuscenes, NUS_VERSION, size.nus_scenes, size.nus_samples, seed=size.seed, overwrite=True
+    )
+
+
+def build_nuscenes_labels(ws: Workspace, workers: int = 1) -> int:
+    """Panoptic nuScenes labels from lidarseg + boxes, written into the dataroot.
+
+    Same as ``panoptic-bench nuscenes make-labels --dataroot D --version v1.0-mini --out-dir D``.
+    Returns the number of label files.
+    """
+    from panoptic_bench.datasets.nuscenes_panoptic import make_panoptic_labels
+
+    return len(make_panoptic_labels(ws.nuscenes, NUS_VERSION, ws.nuscenes, workers=workers))
+
+
+# --------------------------------------------------------------------------- regression
+
+
+def find_checkpoint(name: str) -> Path | None:
+    """The shipped checkpoint ``panoptic_bench/checkpoints/<name>``, or None.
+
+    None as well when the DS-Net network code it needs cannot be imported.
+    """
+    path = Path(str(resources.files("panoptic_bench"))) / "checkpoints" / name
+    if not path.is_file():
+        return None
+    for module in ("panoptic_bench.dsnet.model", "panoptic_bench.dsnet.dynamic_shift"):
+        if importlib.util.find_spec(module) is None:
+            return None
+    return path
+
+
+def dsnet_regression(
+    checkpoint: Path, dataset: Path, sequences: Sequence[str], out: Path, *, threads: int = 0
+) -> str:
+    """DS-Net inference: official predictions plus the regressed-centre files under ``out``.
+
+    Same as ``panoptic-bench infer --checkpoint C --data D --split 08 --out OUT``. Returns the
+    method label (``DS-Net`` for a DS-Net checkpoint).
+    """
+    import torch
+
+    from panoptic_bench.dsnet.infer import run_inference
+
+    if threads:
+        torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    summary = run_inference(checkpoint, dataset, ",".join(sequences), out, device="cpu")
+    return summary.method
+
+
+def simulate_semantickitti_centres(
+    dataset: Path, sequences: Sequence[str], out: Path, *, seed: int, workers: int = 1
+) -> int:
+    """Simulated regression (ground-truth semantics, noisy box centres) for SemanticKITTI scans.
+
+    Same as ``panoptic-bench centers simulate --dataset D --sequences 08 --seed S --output OUT``.
+    Never a network result. Returns the number of scans.
+    """
+    from panoptic_bench.baselines.run import simulate_centers_semantickitti
+
+    return simulate_centers_semantickitti(
+        dataset, out, seed=seed, sequences=list(sequences), workers=workers
+    )
+
+
+def nuscenes_ground_truth(reader, token: str, lut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Challenge classes (0..16) and instance ids of one sweep's panoptic ground truth.
+
+    Returns
+    -------
+    sem : ndarray of shape (n,), int64
+    inst : ndarray of shape (n,), int64
+        Per-scene instance id (0 = none).
+    """
+    panoptic = reader.load_panoptic(token).astype(np.int64)
+    return lut[panoptic // 1000], panoptic % 1000
+
+
+def simulate_nuscenes_centres(
+    dataroot: Path, eval_set: str, out: Path, *, seed: int, version: str = NUS_VERSION
+) -> int:
+    """Simulated regression for the keyframes of ``eval_set`` from their panoptic ground truth.
+
+    Writes ``out/centers/<lidar token>.npz`` (``sem`` = challenge class of the ground truth,
+    offsets from :func:`~panoptic_bench.baselines.regression.simulate_offsets` with seed
+    ``seed + k`` for the k-th keyframe). Never a network result. Returns the number of sweeps.
+    """
+    from panoptic_bench.baselines.centers import centers_path_nuscenes, write_centers
+    from panoptic_bench.baselines.regression import SIMULATED, simulate_offsets
+    from panoptic_bench.baselines.run import NUSCENES_THING_IDS
+    from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar
+    from panoptic_bench.evaluation.nuscenes import ChallengeClasses
+
+    reader = NuScenesLidar(dataroot, version)
+    lut = ChallengeClasses.from_nusc(reader.nusc).lut
+    tokens = reader.sample_data_tokens(eval_set)
+    for k, tok in enumerate(tqdm(tokens, desc="simulate centres", unit="sweep", disable=None)):
+        points = reader.load_points(tok)
+        sem, inst = nuscenes_ground_truth(reader, tok, lut)
+        offset = simulate_offsets(points, sem, inst, NUSCENES_THING_IDS, seed=seed + k)
+        write_centers(centers_path_nuscenes(out, tok), sem, offset, source=SIMULATED)
+    return len(tokens)
+
+
+# --------------------------------------------------------------------------- clustering
+
+
+def cluster_semantickitti_centres(
+    dataset: Path,
+    centres: Path,
+    sequences: Sequence[str],
+    out: Path,
+    spec: ClusteringSpec,
+    *,
+    fusion: bool = True,
+    workers: int = 1,
+) -> int:
+    """Cluster regressed centres into SemanticKITTI ``.label`` predictions under ``out``.
+
+    Same as ``panoptic-bench cluster semantickitti --dataset D --centers C --sequences 08
+    --output OUT --method ...`` (minimum instance size 50). Returns the number of scans.
+    """
+    from panoptic_bench.baselines.clustering import MIN_POINTS_SEMANTICKITTI
+    from panoptic_bench.baselines.run import AssemblyOptions, cluster_semantickitti
+
+    opts = AssemblyOptions(spec.make(), MIN_POINTS_SEMANTICKITTI, fusion=fusion)
+    return cluster_semantickitti(
+        dataset, centres, out, opts, sequences=list(sequences), workers=workers
+    )
+
+
+def cluster_nuscenes_centres(
+    dataroot: Path,
+    eval_set: str,
+    centres: Path,
+    out: Path,
+    spec: ClusteringSpec,
+    *,
+    workers: int = 1,
+    version: str = NUS_VERSION,
+) -> int:
+    """Cluster regressed centres into Panoptic nuScenes predictions under ``out``.
+
+    Same as ``panoptic-bench cluster nuscenes --dataset D --version v1.0-mini --eval-set
+    mini_val --centers C --output OUT --method ...`` (minimum instance size 5).
+    """
+    from panoptic_bench.baselines.clustering import MIN_POINTS_NUSCENES
+    from panoptic_bench.baselines.run import AssemblyOptions, cluster_nuscenes
+
+    opts = AssemblyOptions(spec.make(), MIN_POINTS_NUSCENES)
+    return cluster_nuscenes(dataroot, version, eval_set, centres, out, opts, workers=workers)
