@@ -21,24 +21,28 @@ from panoptic_bench.dsnet.sparse.tensor import SparseTensor, _as_triple
 class _MapConv(torch.autograd.Function):
     """``out[o] = sum over pairs (i, o, k) of features[i] @ weight[k]`` with explicit backward.
 
-    The backward recomputes the gather instead of saving the (n_pairs, C) gathered matrix.
+    One offset at a time through two reusable buffers of at most ``max_pairs_per_offset`` rows
+    (large fresh CPU allocations cost more than the arithmetic at these channel counts); the
+    backward recomputes the gathers instead of saving them.
     """
 
     @staticmethod
     def forward(ctx, features, weight, in_idx, out_idx, splits, identity, n_out):
-        n_off = weight.shape[0]
         if identity is not None:
             out = features @ weight[identity]
         else:
             out = features.new_zeros((n_out, weight.shape[2]))
-        if in_idx.numel():
-            gathered = features.index_select(0, in_idx)
-            prod = features.new_empty((in_idx.numel(), weight.shape[2]))
-            for k in range(n_off):
-                s, e = splits[k], splits[k + 1]
-                if e > s:
-                    torch.mm(gathered[s:e], weight[k], out=prod[s:e])
-            out.index_add_(0, out_idx, prod)
+        sizes = [splits[k + 1] - splits[k] for k in range(weight.shape[0])]
+        most = max(sizes, default=0)
+        if most:
+            gbuf = features.new_empty((most, weight.shape[1]))
+            pbuf = features.new_empty((most, weight.shape[2]))
+            for k, n in enumerate(sizes):
+                if n:
+                    s, e = splits[k], splits[k + 1]
+                    torch.index_select(features, 0, in_idx[s:e], out=gbuf[:n])
+                    torch.mm(gbuf[:n], weight[k], out=pbuf[:n])
+                    out.index_add_(0, out_idx[s:e], pbuf[:n])
         ctx.save_for_backward(features, weight, in_idx, out_idx)
         ctx.splits, ctx.identity = splits, identity
         return out
@@ -50,30 +54,33 @@ class _MapConv(torch.autograd.Function):
         splits, identity = ctx.splits, ctx.identity
         grad_out = grad_out.contiguous()
         need_f, need_w = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        weight_t = weight.transpose(1, 2).contiguous()
         grad_f = grad_w = None
-        go = grad_out.index_select(0, out_idx) if in_idx.numel() else None
         if need_w:
             grad_w = torch.zeros_like(weight)
             if identity is not None:
                 torch.mm(features.t(), grad_out, out=grad_w[identity])
-            if go is not None:
-                gathered = features.index_select(0, in_idx)
-                for k in range(weight.shape[0]):
-                    s, e = splits[k], splits[k + 1]
-                    if e > s:
-                        torch.mm(gathered[s:e].t(), go[s:e], out=grad_w[k])
         if need_f:
             if identity is not None:
-                grad_f = grad_out @ weight[identity].t()
+                grad_f = grad_out @ weight_t[identity]
             else:
                 grad_f = features.new_zeros(features.shape)
-            if go is not None:
-                gi = features.new_empty((in_idx.numel(), weight.shape[1]))
-                for k in range(weight.shape[0]):
-                    s, e = splits[k], splits[k + 1]
-                    if e > s:
-                        torch.mm(go[s:e], weight[k].t(), out=gi[s:e])
-                grad_f.index_add_(0, in_idx, gi)
+        sizes = [splits[k + 1] - splits[k] for k in range(weight.shape[0])]
+        most = max(sizes, default=0)
+        if most and (need_f or need_w):
+            obuf = grad_out.new_empty((most, weight.shape[2]))
+            gbuf = features.new_empty((most, weight.shape[1]))
+            for k, n in enumerate(sizes):
+                if not n:
+                    continue
+                s, e = splits[k], splits[k + 1]
+                torch.index_select(grad_out, 0, out_idx[s:e], out=obuf[:n])
+                if need_w:
+                    torch.index_select(features, 0, in_idx[s:e], out=gbuf[:n])
+                    torch.mm(gbuf[:n].t(), obuf[:n], out=grad_w[k])
+                if need_f:
+                    torch.mm(obuf[:n], weight_t[k], out=gbuf[:n])
+                    grad_f.index_add_(0, in_idx[s:e], gbuf[:n])
         return grad_f, grad_w, None, None, None, None, None
 
 

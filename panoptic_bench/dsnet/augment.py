@@ -1,0 +1,85 @@
+"""Training augmentation of one scan (DS-Net / Cylinder3D defaults), deterministic per generator.
+
+In order: rotation about z by U[0, 360) degrees; flip of x, y, both or none (uniform over the
+four); scaling of x and y by U[0.95, 1.05]; translation by N(0, 0.1 m) per axis.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+Generator = np.random.Generator | torch.Generator
+
+
+def _uniform(gen: Generator, lo: float, hi: float) -> float:
+    if isinstance(gen, torch.Generator):
+        return lo + (hi - lo) * float(torch.rand((), generator=gen, dtype=torch.float64))
+    return float(gen.uniform(lo, hi))
+
+
+def _normal(gen: Generator, std: float) -> float:
+    if isinstance(gen, torch.Generator):
+        return std * float(torch.randn((), generator=gen, dtype=torch.float64))
+    return float(gen.normal(0.0, std))
+
+
+def _choice4(gen: Generator) -> int:
+    if isinstance(gen, torch.Generator):
+        return int(torch.randint(4, (), generator=gen))
+    return int(gen.integers(4))
+
+
+def augmentation_matrix(
+    generator: Generator,
+    rotate: bool = True,
+    flip: bool = True,
+    scale_range: tuple[float, float] = (0.95, 1.05),
+    translate_std: tuple[float, float, float] = (0.1, 0.1, 0.1),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Draw one augmentation: ``xyz' = xyz @ A.T + t``.
+
+    Returns
+    -------
+    A : numpy.ndarray
+        Array of shape (3, 3), float64 (acts on x, y only).
+    t : numpy.ndarray
+        Array of shape (3,), float64.
+    """
+    a = np.eye(3)
+    if rotate:
+        angle = _uniform(generator, 0.0, 2 * math.pi)
+        c, s = math.cos(angle), math.sin(angle)
+        a = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ a
+    if flip:
+        kind = _choice4(generator)
+        f = np.diag([-1.0 if kind in (1, 3) else 1.0, -1.0 if kind in (2, 3) else 1.0, 1.0])
+        a = f @ a
+    lo, hi = scale_range
+    if (lo, hi) != (1.0, 1.0):
+        k = _uniform(generator, lo, hi)
+        a = np.diag([k, k, 1.0]) @ a
+    t = np.array([_normal(generator, sd) if sd > 0 else 0.0 for sd in translate_std])
+    return a, t
+
+
+def augment_points(
+    xyz: torch.Tensor | np.ndarray,
+    generator: Generator,
+    rotate: bool = True,
+    flip: bool = True,
+    scale_range: tuple[float, float] = (0.95, 1.05),
+    translate_std: tuple[float, float, float] = (0.1, 0.1, 0.1),
+) -> torch.Tensor | np.ndarray:
+    """Augment the coordinates of one scan; same type, shape (n, 3), dtype and device.
+
+    The same generator state gives the same result (numpy or torch generator). Instance
+    centres must be computed *after* augmentation (they move with the points).
+    """
+    a, t = augmentation_matrix(generator, rotate, flip, scale_range, translate_std)
+    if isinstance(xyz, torch.Tensor):
+        at = torch.as_tensor(a, dtype=xyz.dtype, device=xyz.device)
+        return xyz @ at.T + torch.as_tensor(t, dtype=xyz.dtype, device=xyz.device)
+    return (xyz @ a.T + t).astype(xyz.dtype, copy=False)

@@ -1,0 +1,165 @@
+"""Cylinder3D asymmetric residual U-Net, as used by DS-Net (paper §3.1).
+
+Context block -> 4 down blocks (strided conv; stride 2 in all axes for the first two, "height
+pooling", then (2, 2, 1)) -> 4 up blocks (submanifold conv, inverse conv reusing the matching
+down-sampling map, skip addition, asymmetric convs) -> reconstruction block (three 1-D convs,
+sigmoid gates multiplied onto the input). The output concatenates the reconstruction with its
+input: ``4 * init_size`` features at the input sites.
+
+Layer order follows the reference: convolution, LeakyReLU, then BatchNorm (sigmoid after
+BatchNorm in the reconstruction block).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from panoptic_bench.dsnet.sparse import SparseConv3d, SparseInverseConv3d, SparseTensor, SubMConv3d
+
+K_1x3x3 = (1, 3, 3)
+K_3x1x3 = (3, 1, 3)
+K_3x3x3 = (3, 3, 3)
+
+
+class ConvActNorm(nn.Module):
+    """Submanifold conv -> LeakyReLU -> BatchNorm on the features."""
+
+    def __init__(self, in_channels: int, out_channels: int, kernel_size: tuple[int, int, int]):
+        super().__init__()
+        self.conv = SubMConv3d(in_channels, out_channels, kernel_size)
+        self.act = nn.LeakyReLU()
+        self.norm = nn.BatchNorm1d(out_channels)
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        y = self.conv(x)
+        return y.replace_features(self.norm(self.act(y.features)))
+
+
+class ResContextBlock(nn.Module):
+    """Two asymmetric branches (1x3x3 then 3x1x3, and 3x1x3 then 1x3x3), summed."""
+
+    def __init__(self, in_channels: int, out_channels: int) -> None:
+        super().__init__()
+        self.branch_a = nn.Sequential(
+            ConvActNorm(in_channels, out_channels, K_1x3x3),
+            ConvActNorm(out_channels, out_channels, K_3x1x3),
+        )
+        self.branch_b = nn.Sequential(
+            ConvActNorm(in_channels, out_channels, K_3x1x3),
+            ConvActNorm(out_channels, out_channels, K_1x3x3),
+        )
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        a, b = self.branch_a(x), self.branch_b(x)
+        return b.replace_features(a.features + b.features)
+
+
+class DownBlock(nn.Module):
+    """Residual asymmetric block, then a strided 3x3x3 conv (padding 1).
+
+    The residual block has the context block's two branches (1x3x3 then 3x1x3, 3x1x3 then
+    1x3x3; the reference names them the other way round, the sum is the same).
+
+    ``forward`` returns ``(pooled, before_pooling)``; the second is the skip connection.
+    """
+
+    def __init__(self, in_channels: int, out_channels: int, height_pooling: bool) -> None:
+        super().__init__()
+        self.residual = ResContextBlock(in_channels, out_channels)
+        self.stride = (2, 2, 2) if height_pooling else (2, 2, 1)
+        self.pool = SparseConv3d(out_channels, out_channels, 3, self.stride, 1)
+
+    def forward(self, x: SparseTensor) -> tuple[SparseTensor, SparseTensor]:
+        skip = self.residual(x)
+        return self.pool(skip), skip
+
+
+class UpBlock(nn.Module):
+    """3x3x3 conv, inverse conv back to the skip's sites, add skip, 1x3x3 / 3x1x3 / 3x3x3 convs."""
+
+    def __init__(self, in_channels: int, out_channels: int, stride: tuple[int, int, int]):
+        super().__init__()
+        self.reduce = ConvActNorm(in_channels, out_channels, K_3x3x3)
+        self.up = SparseInverseConv3d(out_channels, out_channels, 3, stride, 1)
+        self.refine = nn.Sequential(
+            ConvActNorm(out_channels, out_channels, K_1x3x3),
+            ConvActNorm(out_channels, out_channels, K_3x1x3),
+            ConvActNorm(out_channels, out_channels, K_3x3x3),
+        )
+
+    def forward(self, x: SparseTensor, skip: SparseTensor) -> SparseTensor:
+        up = self.up(self.reduce(x))
+        return self.refine(up.replace_features(up.features + skip.features))
+
+
+class ReconBlock(nn.Module):
+    """Three 1-D convs (3x1x1, 1x3x1, 1x1x3), each BatchNorm -> sigmoid, summed, times input."""
+
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        kernels = ((3, 1, 1), (1, 3, 1), (1, 1, 3))
+        self.convs = nn.ModuleList(SubMConv3d(channels, channels, k) for k in kernels)
+        self.norms = nn.ModuleList(nn.BatchNorm1d(channels) for _ in kernels)
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        gate = sum(
+            torch.sigmoid(norm(conv(x).features)) for conv, norm in zip(self.convs, self.norms)
+        )
+        return x.replace_features(gate * x.features)
+
+
+class AsymmetricUNet(nn.Module):
+    """Cylinder3D backbone.
+
+    Parameters
+    ----------
+    in_channels : int
+        Voxel feature width from the point encoder (16).
+    init_size : int
+        Base width (paper 32); widths are ``init_size * (1, 2, 4, 8, 16)`` down the U.
+
+    Forward
+    -------
+    ``SparseTensor`` with ``in_channels`` features -> ``SparseTensor`` with
+    ``out_channels == 4 * init_size`` features on the same sites.
+    """
+
+    def __init__(self, in_channels: int = 16, init_size: int = 32) -> None:
+        super().__init__()
+        w = init_size
+        self.init_size = init_size
+        self.out_channels = 4 * w
+        self.context = ResContextBlock(in_channels, w)
+        self.down = nn.ModuleList(
+            [
+                DownBlock(w, 2 * w, height_pooling=True),
+                DownBlock(2 * w, 4 * w, height_pooling=True),
+                DownBlock(4 * w, 8 * w, height_pooling=False),
+                DownBlock(8 * w, 16 * w, height_pooling=False),
+            ]
+        )
+        strides = [d.stride for d in self.down]
+        self.up = nn.ModuleList(
+            [
+                UpBlock(16 * w, 16 * w, strides[3]),
+                UpBlock(16 * w, 8 * w, strides[2]),
+                UpBlock(8 * w, 4 * w, strides[1]),
+                UpBlock(4 * w, 2 * w, strides[0]),
+            ]
+        )
+        self.recon = ReconBlock(2 * w)
+
+    def extra_repr(self) -> str:
+        return f"init_size={self.init_size}"
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        h = self.context(x)
+        skips = []
+        for block in self.down:
+            h, skip = block(h)
+            skips.append(skip)
+        for block, skip in zip(self.up, reversed(skips)):
+            h = block(h, skip)
+        r = self.recon(h)
+        return r.replace_features(torch.cat([r.features, h.features], dim=1))

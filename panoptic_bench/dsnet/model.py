@@ -1,0 +1,134 @@
+"""The DS-Net strong backbone: point encoder + cylinder U-Net + semantic and offset heads.
+
+Example
+-------
+>>> import torch
+>>> from panoptic_bench.dsnet.model import PanopticBackbone
+>>> from panoptic_bench.dsnet.voxelize import CylinderGrid, collate
+>>> grid = CylinderGrid(size=(32, 32, 8))
+>>> model = PanopticBackbone(num_classes=5, init_size=4, grid=grid, point_hidden=(16,),
+...                          point_feature_dim=16, voxel_feature_dim=8, offset_hidden=8)
+>>> batch = collate([torch.rand(200, 4) * 20], grid)
+>>> out = model(batch)
+>>> out.sem_logits.shape, out.offsets.shape
+(torch.Size([200, 5]), torch.Size([200, 3]))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from panoptic_bench.dsnet.backbone import AsymmetricUNet
+from panoptic_bench.dsnet.heads import InstanceHead, SemanticHead
+from panoptic_bench.dsnet.voxelize import (
+    N_POINT_FEATURES,
+    CylinderGrid,
+    PointVoxelEncoder,
+    VoxelBatch,
+)
+
+
+@dataclass
+class BackboneOutput:
+    """Network outputs for a :class:`VoxelBatch` (points in batch order).
+
+    Attributes
+    ----------
+    sem_logits : torch.Tensor
+        Array of shape (n_points, num_classes), float: each point's voxel logits.
+    offsets : torch.Tensor
+        Array of shape (n_points, 3), float: predicted ``centre - xyz`` (metres, Cartesian).
+    point_features : torch.Tensor
+        Array of shape (n_points, init_size), float: instance-head features of each point.
+    voxel_logits : torch.Tensor
+        Array of shape (n_voxels, num_classes), float.
+    """
+
+    sem_logits: torch.Tensor
+    offsets: torch.Tensor
+    point_features: torch.Tensor
+    voxel_logits: torch.Tensor
+
+
+@dataclass
+class BackbonePrediction:
+    """Hard predictions: labels, regressed centres (``xyz + offsets``), per-point scan index."""
+
+    sem_labels: torch.Tensor
+    centers: torch.Tensor
+    point_batch: torch.Tensor
+
+
+class PanopticBackbone(nn.Module):
+    """DS-Net "strong backbone" (paper §3.1), assembled from explicit arguments.
+
+    Parameters
+    ----------
+    num_classes : int
+        Semantic logits per point (including an ignored class 0 if the label map has one).
+    init_size : int
+        U-Net base width (paper 32; a CPU configuration uses 8-16).
+    grid : CylinderGrid
+        The voxel grid (only its size is used by the network; voxelization is in ``collate``).
+    point_hidden : tuple of ints
+        Hidden widths of the per-point MLP (DS-Net: 64, 128, 256).
+    point_feature_dim : int
+        Per-point width before max-pooling into voxels (DS-Net: 64).
+    voxel_feature_dim : int
+        Voxel feature width after compression (16).
+    offset_hidden : int or None
+        Hidden width of the offset MLP (DS-Net: ``init_size``; None means that).
+    """
+
+    def __init__(
+        self,
+        num_classes: int,
+        init_size: int = 32,
+        grid: CylinderGrid | None = None,
+        point_hidden: tuple[int, ...] = (64, 128, 256),
+        point_feature_dim: int = 64,
+        voxel_feature_dim: int = 16,
+        offset_hidden: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.grid = CylinderGrid() if grid is None else grid
+        self.num_classes = num_classes
+        self.encoder = PointVoxelEncoder(
+            N_POINT_FEATURES, tuple(point_hidden), point_feature_dim, voxel_feature_dim
+        )
+        self.unet = AsymmetricUNet(voxel_feature_dim, init_size)
+        self.semantic_head = SemanticHead(self.unet.out_channels, num_classes)
+        self.instance_head = InstanceHead(
+            self.unet.out_channels, init_size, init_size if offset_hidden is None else offset_hidden
+        )
+
+    def extra_repr(self) -> str:
+        return f"num_classes={self.num_classes}, grid_size={self.grid.size}"
+
+    def forward(self, batch: VoxelBatch) -> BackboneOutput:
+        """Run on a batch from :func:`panoptic_bench.dsnet.voxelize.collate` (same device)."""
+        if tuple(batch.spatial_shape) != tuple(self.grid.size):
+            raise ValueError(
+                f"batch voxelized on a {batch.spatial_shape} grid, model built for "
+                f"{self.grid.size}; collate with the model's grid"
+            )
+        voxels = self.unet(self.encoder(batch))
+        voxel_logits, sem_logits = self.semantic_head(voxels, batch.point_voxel)
+        offsets, point_features = self.instance_head(voxels, batch.point_voxel, batch.xyz)
+        return BackboneOutput(sem_logits, offsets, point_features, voxel_logits)
+
+    @torch.no_grad()
+    def predict(self, batch: VoxelBatch, ignore_index: int | None = 0) -> BackbonePrediction:
+        """Labels and regressed centres without gradients (call ``eval()`` first).
+
+        ``ignore_index`` (the unlabelled class) is never predicted; None allows every class.
+        """
+        out = self.forward(batch)
+        logits = out.sem_logits
+        if ignore_index is not None:
+            logits = logits.clone()
+            logits[:, ignore_index] = float("-inf")
+        return BackbonePrediction(logits.argmax(1), batch.xyz + out.offsets, batch.point_batch)

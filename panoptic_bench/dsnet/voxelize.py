@@ -1,0 +1,254 @@
+"""Cylindrical voxelization, 9-D point features, batching, and the point-to-voxel encoder.
+
+A point ``(x, y, z)`` goes to cylindrical ``(rho, phi, z)``; the grid splits
+``[rho_min, rho_max] x [phi_min, phi_max) x [z_min, z_max]`` into ``size`` equal cells, and
+points outside the ranges are clipped into the border cells (as Cylinder3D / DS-Net do, so
+every point gets a voxel and a prediction).
+
+Point features (9 per point, Cylinder3D order): offset of the point to its voxel centre in
+cylindrical coordinates ``(d_rho, d_phi, d_z)``, then ``rho, phi, z, x, y, remission``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from panoptic_bench.dsnet.sparse import SparseTensor
+from panoptic_bench.dsnet.sparse.tensor import decode_keys
+
+N_POINT_FEATURES = 9
+
+
+@dataclass(frozen=True)
+class CylinderGrid:
+    """Cylindrical voxel grid: cell counts along (rho, phi, z) and the clipped ranges.
+
+    Defaults are the paper's 480 x 360 x 32 cells over rho in [3, 50] m, phi in [-180, 180)
+    degrees, z in [-3, 1.5] m. Field names match ``panoptic_bench.dsnet.config.GridConfig``.
+    """
+
+    size: tuple[int, int, int] = (480, 360, 32)
+    rho_range: tuple[float, float] = (3.0, 50.0)
+    phi_range_deg: tuple[float, float] = (-180.0, 180.0)
+    z_range: tuple[float, float] = (-3.0, 1.5)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "size", tuple(int(s) for s in self.size))
+        for name in ("rho_range", "phi_range_deg", "z_range"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+        if len(self.size) != 3 or min(self.size) < 1:
+            raise ValueError(f"grid size must be 3 positive ints, got {self.size}")
+        for name in ("rho_range", "phi_range_deg", "z_range"):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise ValueError(f"grid {name} must be increasing, got {[lo, hi]}")
+
+    @property
+    def min_bound(self) -> tuple[float, float, float]:
+        """Lower corner (rho m, phi rad, z m)."""
+        return (self.rho_range[0], math.radians(self.phi_range_deg[0]), self.z_range[0])
+
+    @property
+    def max_bound(self) -> tuple[float, float, float]:
+        """Upper corner (rho m, phi rad, z m)."""
+        return (self.rho_range[1], math.radians(self.phi_range_deg[1]), self.z_range[1])
+
+    @property
+    def cell_size(self) -> tuple[float, float, float]:
+        """Cell extent (rho m, phi rad, z m)."""
+        return tuple((hi - lo) / n for lo, hi, n in zip(self.min_bound, self.max_bound, self.size))  # type: ignore[return-value]
+
+    @classmethod
+    def from_dict(cls, mapping: dict[str, Any]) -> CylinderGrid:
+        """Build from a plain mapping; unknown keys are an error."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(mapping) - known)
+        if unknown:
+            raise ValueError(f"unknown grid keys {unknown}; known: {sorted(known)}")
+        return cls(**{k: tuple(v) for k, v in mapping.items()})
+
+    def to_dict(self) -> dict[str, list]:
+        """Plain mapping (lists, not tuples) that :meth:`from_dict` reads back."""
+        return {f.name: list(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+def cylindrical(xyz: torch.Tensor) -> torch.Tensor:
+    """(x, y, z) -> (rho, phi, z); arrays of shape (n, 3), phi in [-pi, pi] radians."""
+    rho = torch.sqrt(xyz[:, 0] ** 2 + xyz[:, 1] ** 2)
+    phi = torch.atan2(xyz[:, 1], xyz[:, 0])
+    return torch.stack([rho, phi, xyz[:, 2]], dim=1)
+
+
+def voxel_indices(xyz: torch.Tensor, grid: CylinderGrid) -> torch.Tensor:
+    """Cell (i_rho, i_phi, i_z) of each point, shape (n, 3), int64; outside points clipped."""
+    pol = cylindrical(xyz)
+    lo = pol.new_tensor(grid.min_bound)
+    hi = pol.new_tensor(grid.max_bound)
+    cell = pol.new_tensor(grid.cell_size)
+    idx = torch.floor((torch.minimum(torch.maximum(pol, lo), hi) - lo) / cell).long()
+    upper = torch.tensor(grid.size, device=xyz.device) - 1
+    return torch.minimum(idx.clamp_(min=0), upper)
+
+
+def point_features(
+    xyz: torch.Tensor, remission: torch.Tensor, grid: CylinderGrid
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """9-D point features and voxel indices.
+
+    Parameters
+    ----------
+    xyz : torch.Tensor
+        Array of shape (n, 3), float, metres.
+    remission : torch.Tensor
+        Array of shape (n,), float.
+    grid : CylinderGrid
+
+    Returns
+    -------
+    features : torch.Tensor
+        Array of shape (n, 9), same dtype: ``d_rho, d_phi, d_z`` (point minus its voxel centre,
+        cylindrical, unclipped point), ``rho, phi, z, x, y, remission``.
+    indices : torch.Tensor
+        Array of shape (n, 3), int64, from :func:`voxel_indices`.
+    """
+    pol = cylindrical(xyz)
+    idx = voxel_indices(xyz, grid)
+    centre = (idx.to(pol.dtype) + 0.5) * pol.new_tensor(grid.cell_size) + pol.new_tensor(
+        grid.min_bound
+    )
+    feats = torch.cat([pol - centre, pol, xyz[:, :2], remission[:, None].to(pol.dtype)], dim=1)
+    return feats, idx
+
+
+@dataclass
+class VoxelBatch:
+    """Several scans voxelized together.
+
+    Attributes
+    ----------
+    point_features : torch.Tensor
+        Array of shape (n_points, 9), float32.
+    xyz : torch.Tensor
+        Array of shape (n_points, 3), float32, Cartesian (input to the offset head).
+    point_voxel : torch.Tensor
+        Array of shape (n_points,), int64: row of ``voxel_coords`` holding each point.
+    point_batch : torch.Tensor
+        Array of shape (n_points,), int64: scan index of each point (scans concatenated in order).
+    voxel_coords : torch.Tensor
+        Array of shape (n_voxels, 4), int32, ``(scan, i_rho, i_phi, i_z)``, sorted, unique.
+    spatial_shape : tuple of 3 ints
+    batch_size : int
+    """
+
+    point_features: torch.Tensor
+    xyz: torch.Tensor
+    point_voxel: torch.Tensor
+    point_batch: torch.Tensor
+    voxel_coords: torch.Tensor
+    spatial_shape: tuple[int, int, int]
+    batch_size: int
+
+    def to(self, device: torch.device | str) -> VoxelBatch:
+        """Copy every tensor to ``device``."""
+        moved = {
+            f.name: getattr(self, f.name).to(device)
+            for f in dataclasses.fields(self)
+            if isinstance(getattr(self, f.name), torch.Tensor)
+        }
+        return dataclasses.replace(self, **moved)
+
+    @property
+    def num_points(self) -> int:
+        return int(self.xyz.shape[0])
+
+
+def collate(
+    scans: Sequence[torch.Tensor | np.ndarray], grid: CylinderGrid, device: Any = None
+) -> VoxelBatch:
+    """Voxelize scans of shape (n_i, 4) ``x, y, z, remission`` into one :class:`VoxelBatch`.
+
+    Points keep their order (scan 0 first); ``device`` defaults to that of the first tensor.
+    """
+    if not scans:
+        raise ValueError("collate needs at least one scan")
+    tensors = [torch.as_tensor(s) for s in scans]
+    device = tensors[0].device if device is None else torch.device(device)
+    feats, xyzs, idxs, batch = [], [], [], []
+    for b, pts in enumerate(tensors):
+        if pts.ndim != 2 or pts.shape[1] < 4:
+            raise ValueError(f"scan {b} must have shape (n, 4), got {tuple(pts.shape)}")
+        pts = pts.to(device=device, dtype=torch.float32)
+        f, idx = point_features(pts[:, :3], pts[:, 3], grid)
+        feats.append(f)
+        xyzs.append(pts[:, :3])
+        idxs.append(idx)
+        batch.append(torch.full((pts.shape[0],), b, dtype=torch.long, device=device))
+    idx = torch.cat(idxs)
+    point_batch = torch.cat(batch)
+    x, y, z = grid.size
+    keys = ((point_batch * x + idx[:, 0]) * y + idx[:, 1]) * z + idx[:, 2]
+    uniq, inverse = torch.unique(keys, sorted=True, return_inverse=True)
+    return VoxelBatch(
+        point_features=torch.cat(feats),
+        xyz=torch.cat(xyzs),
+        point_voxel=inverse,
+        point_batch=point_batch,
+        voxel_coords=decode_keys(uniq, grid.size),
+        spatial_shape=grid.size,
+        batch_size=len(tensors),
+    )
+
+
+class PointVoxelEncoder(nn.Module):
+    """Per-point MLP (PointNet-style) max-pooled into voxels, then compressed.
+
+    ``BN -> [Linear -> BN -> ReLU] * len(hidden) -> Linear(point_feature_dim)``, max over the
+    points of each voxel (``scatter_reduce``), then ``Linear(voxel_feature_dim) -> ReLU``.
+
+    Parameters
+    ----------
+    in_channels : int
+        Point feature size (9).
+    hidden : tuple of ints
+        Hidden widths of the point MLP (DS-Net: 64, 128, 256).
+    point_feature_dim : int
+        Width before pooling (DS-Net: 64; Cylinder3D: 256).
+    voxel_feature_dim : int
+        Width after compression, input of the backbone (16).
+    """
+
+    def __init__(
+        self,
+        in_channels: int = N_POINT_FEATURES,
+        hidden: tuple[int, ...] = (64, 128, 256),
+        point_feature_dim: int = 64,
+        voxel_feature_dim: int = 16,
+    ) -> None:
+        super().__init__()
+        layers: list[nn.Module] = [nn.BatchNorm1d(in_channels)]
+        width = in_channels
+        for h in hidden:
+            layers += [nn.Linear(width, h), nn.BatchNorm1d(h), nn.ReLU()]
+            width = h
+        layers.append(nn.Linear(width, point_feature_dim))
+        self.point_mlp = nn.Sequential(*layers)
+        self.compress = nn.Sequential(nn.Linear(point_feature_dim, voxel_feature_dim), nn.ReLU())
+        self.out_channels = voxel_feature_dim
+
+    def forward(self, batch: VoxelBatch) -> SparseTensor:
+        """Voxel features as a :class:`SparseTensor` on ``batch.voxel_coords``."""
+        pf = self.point_mlp(batch.point_features)
+        n_vox = batch.voxel_coords.shape[0]
+        index = batch.point_voxel[:, None].expand(-1, pf.shape[1])
+        pooled = pf.new_zeros((n_vox, pf.shape[1])).scatter_reduce(
+            0, index, pf, reduce="amax", include_self=False
+        )
+        return SparseTensor(self.compress(pooled), batch.voxel_coords, batch.spatial_shape)
