@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from sklearn.cluster import MeanShift
 from sklearn.metrics import adjusted_rand_score
 
+from panoptic_bench.baselines.meanshift import MeanShift
 from panoptic_bench.dsnet.config import ShiftKernel
 from panoptic_bench.dsnet.dynamic_shift import (
     DynamicShift,
