@@ -78,7 +78,7 @@ def build_shift(cfg: DSNetConfig, feature_dim: int) -> nn.Module:
         feature_dim,
         bandwidths=d.bandwidths,
         iterations=d.iterations,
-        kernel=d.kernel.value,
+        kernel=d.kernel,
     )
 
 

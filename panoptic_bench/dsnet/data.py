@@ -18,6 +18,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from panoptic_bench.dsnet.augment import augment_points
 from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
 from panoptic_bench.errors import InputError
 
@@ -28,7 +29,6 @@ __all__ = [
     "NuScenesDataset",
     "SemanticKittiDataset",
     "TrainingSet",
-    "augment_points",
     "collate",
     "open_dataset",
 ]
@@ -278,37 +278,6 @@ def open_dataset(root: str | Path, data: DataConfig, which: str) -> LidarDataset
     return ds
 
 
-def augment_points(xyz: np.ndarray, cfg: AugmentConfig, rng: np.random.Generator) -> np.ndarray:
-    """Random rotation about z, flip, isotropic scaling and translation jitter.
-
-    Parameters
-    ----------
-    xyz : ndarray of shape (n, 3), float32
-    cfg : AugmentConfig
-    rng : numpy Generator
-
-    Returns
-    -------
-    ndarray of shape (n, 3), float32
-        A new array; instance centres must be computed on this (augmented) array.
-    """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    if cfg.rotate:
-        a = rng.uniform(0.0, 2.0 * np.pi)
-        c, s = np.cos(a), np.sin(a)
-        xyz = xyz @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    if cfg.flip:
-        mode = rng.integers(4)
-        if mode & 1:
-            xyz[:, 0] = -xyz[:, 0]
-        if mode & 2:
-            xyz[:, 1] = -xyz[:, 1]
-    lo, hi = cfg.scale_range
-    xyz[:, :2] *= rng.uniform(lo, hi)
-    xyz += rng.normal(0.0, 1.0, 3) * np.asarray(cfg.translate_std)
-    return xyz.astype(np.float32)
-
-
 class TrainingSet:
     """A :class:`LidarDataset` as a PyTorch map-style dataset of augmented numpy samples.
 
@@ -347,7 +316,14 @@ class TrainingSet:
                     sample.inst[keep],
                     sample.key,
                 )
-            sample.xyz = augment_points(sample.xyz, self.augment, rng)
+            sample.xyz = augment_points(
+                sample.xyz,
+                rng,
+                rotate=self.augment.rotate,
+                flip=self.augment.flip,
+                scale_range=self.augment.scale_range,
+                translate_std=self.augment.translate_std,
+            )
         return sample
 
 

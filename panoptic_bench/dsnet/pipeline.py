@@ -19,9 +19,9 @@ from panoptic_bench.dsnet.data import ClassMap, LidarSample
 __all__ = [
     "StageLoss",
     "backbone_forward",
-    "class_weights_from_counts",
-    "count_classes",
-    "ds_seed_inputs",
+    "class_weights_for",
+    "ds_cluster",
+    "ds_stage_loss",
     "stage_loss",
 ]
 
@@ -49,37 +49,29 @@ def backbone_forward(model: nn.Module, samples: list[LidarSample], grid, device:
     return model(collate(scans, grid, device=device))
 
 
-def count_classes(samples_sem: list[np.ndarray], num_classes: int) -> np.ndarray:
-    """Point count per train id over label arrays: int64 array of shape (num_classes,)."""
-    counts = np.zeros(num_classes, dtype=np.int64)
-    for sem in samples_sem:
-        counts += np.bincount(sem, minlength=num_classes)[:num_classes]
-    return counts
-
-
-def class_weights_from_counts(
-    counts: np.ndarray, ignore: tuple[int, ...], power: float
+def class_weights_for(
+    dataset_sem: list[np.ndarray], class_map: ClassMap, power: float
 ) -> list[float]:
-    """CE class weights ``1 / frequency ** power``, mean 1 over non-ignored classes present.
+    """CE class weights from the training labels (:func:`losses.class_weights`), as floats."""
+    from panoptic_bench.dsnet import losses
 
-    Ignored classes get 0; classes absent from the training set get the largest weight.
-    """
-    counts = np.asarray(counts, dtype=np.float64)
-    freq = counts / max(counts.sum(), 1.0)
-    w = np.zeros_like(freq)
-    present = freq > 0
-    w[present] = 1.0 / freq[present] ** power
-    keep = np.ones(len(w), dtype=bool)
-    keep[list(ignore)] = False
-    if (present & keep).any():
-        w[keep & ~present] = w[present & keep].max()
-        w[keep] /= w[keep].mean()
-    w[~keep] = 0.0
-    return [float(x) for x in w]
+    counts = losses.label_counts(dataset_sem, class_map.num_classes)
+    ignore = class_map.ignore_ids[0] if class_map.ignore_ids else None
+    return [float(w) for w in losses.class_weights(counts, power=power, ignore_index=ignore)]
 
 
 def _cat(samples: list[LidarSample], name: str, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(np.concatenate([getattr(s, name) for s in samples])).to(device)
+
+
+def _batch_index(samples: list[LidarSample], device: torch.device) -> torch.Tensor:
+    sizes = torch.tensor([len(s.xyz) for s in samples], device=device)
+    return torch.repeat_interleave(torch.arange(len(samples), device=device), sizes)
+
+
+def _thing_mask(sem: torch.Tensor, inst: torch.Tensor, class_map: ClassMap) -> torch.Tensor:
+    lut = torch.from_numpy(class_map.thing_lut()).to(sem.device)
+    return lut[sem] & (inst > 0)
 
 
 def stage_loss(
@@ -92,79 +84,103 @@ def stage_loss(
 ) -> StageLoss:
     """Backbone loss of the ``semantic`` or ``offset`` stage for a batch.
 
-    ``semantic``: ``ce * CE + lovasz * Lovász``; ``offset`` adds ``offset * L1`` on thing points
-    towards the tight-box centre of their instance.
+    ``semantic``: ``ce * weighted CE + lovasz * Lovász-softmax``; ``offset`` adds
+    ``offset * L1`` on ground-truth thing points towards the tight-box centre of their instance.
     """
     from panoptic_bench.dsnet import losses
 
     device = out.sem_logits.device
     sem = _cat(samples, "sem", device)
     w = cfg.loss
-    ce = losses.weighted_cross_entropy(
-        out.sem_logits, sem, class_weights, ignore_index=class_map.ignore_ids[0]
+    ignore = class_map.ignore_ids[0] if class_map.ignore_ids else -100
+    total = losses.semantic_loss(
+        out.sem_logits, sem, class_weights, ignore, ce_weight=w.ce, lovasz_weight=w.lovasz
     )
-    lov = losses.lovasz_softmax(out.sem_logits, sem, ignore_index=class_map.ignore_ids[0])
-    total = w.ce * ce + w.lovasz * lov
-    parts = {"ce": float(ce.detach()), "lovasz": float(lov.detach())}
+    parts = {"semantic": float(total.detach())}
     if stage == "offset":
         xyz = _cat(samples, "xyz", device)
-        inst = _cat(samples, "inst", device) + _batch_offsets(samples, device)
-        off = losses.offset_loss(out.offsets, xyz, inst)
+        inst = _cat(samples, "inst", device)
+        centers = losses.instance_centers(xyz, inst, _batch_index(samples, device))
+        off = losses.offset_loss(out.offsets, xyz, centers, _thing_mask(sem, inst, class_map))
         total = total + w.offset * off
         parts["offset"] = float(off.detach())
-    elif w.offset > 0:
-        total = total + 0.0 * out.offsets.sum()  # keep every parameter in the graph (DDP)
+    else:
+        total = total + 0.0 * out.offsets.sum()  # every parameter stays in the graph (DDP)
     parts["total"] = float(total.detach())
     return StageLoss(total, parts)
 
 
-def _batch_offsets(samples: list[LidarSample], device: torch.device) -> torch.Tensor:
-    """Shift instance ids of each sample so that ids of different samples never collide."""
-    shifts, base = [], 0
+def ds_stage_loss(
+    shift: nn.Module, out, samples: list[LidarSample], cfg: DSNetConfig, class_map: ClassMap
+) -> torch.Tensor:
+    """Dynamic-shifting loss (paper eq. 4–5), averaged over the scans of the batch.
+
+    Seeds are the FPS sample of the regressed centres of the ground-truth thing points; their
+    targets are the tight-box centres of their instances.
+    """
+    from panoptic_bench.dsnet import losses
+    from panoptic_bench.dsnet.ds_head import shift_training_loss
+
+    device = out.offsets.device
+    total, start = out.offsets.new_zeros(()), 0
     for s in samples:
-        shifts.append(np.where(s.inst > 0, base, 0))
-        base += int(s.inst.max(initial=0))
-    return torch.from_numpy(np.concatenate(shifts)).to(device)
+        sl = slice(start, start + len(s.xyz))
+        start += len(s.xyz)
+        xyz = torch.from_numpy(s.xyz).to(device)
+        sem = torch.from_numpy(s.sem).to(device)
+        inst = torch.from_numpy(s.inst).to(device)
+        idx = torch.nonzero(_thing_mask(sem, inst, class_map)).squeeze(1)
+        if len(idx) == 0:
+            total = total + 0.0 * sum(p.sum() for p in shift.parameters())
+            continue
+        gt = losses.instance_centers(xyz[idx], inst[idx])
+        total = total + shift_training_loss(
+            shift,
+            xyz[idx] + out.offsets[sl][idx],
+            out.point_features[sl][idx],
+            gt,
+            max_seeds=cfg.dynamic_shift.max_seeds,
+            iteration_weights=cfg.loss.ds_iteration_weights,
+        )
+    return total / max(len(samples), 1)
 
 
-def ds_seed_inputs(
-    out, samples: list[LidarSample], class_map: ClassMap, use_gt_things: bool
-) -> list[dict[str, torch.Tensor]]:
-    """Per sample: thing points, their regressed centres, features and instance ids.
+def ds_cluster(
+    shift: nn.Module,
+    points: np.ndarray,
+    centers: np.ndarray,
+    features: torch.Tensor,
+    cfg: DSNetConfig,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Algorithm 1 on the predicted thing points of one scan.
 
     Parameters
     ----------
-    use_gt_things : bool
-        Select thing points from the ground truth (training) or the prediction (inference).
+    points, centers : ndarray of shape (M, 3)
+        Thing points and their regressed centres.
+    features : torch.Tensor of shape (M, F)
 
     Returns
     -------
-    list of dict
-        ``index`` (M,) int64 point indices in the sample, ``points`` (M, 3), ``centers`` (M, 3),
-        ``features`` (M, F), ``inst`` (M,) int64.
+    labels : ndarray of shape (M,), int64
+        Cluster of each point's nearest seed.
+    diagnostics : dict of str to ndarray
+        ``seed_index`` (M',), ``positions`` (I + 1, M', 3) (the seed trajectories),
+        ``weights`` (I, M', l), ``bandwidths`` (I, M') implied Σ_j W_j δ_j, ``seed_labels``
+        (M',), ``candidates`` (l,) the bandwidth candidates δ_j.
     """
-    things = torch.zeros(class_map.num_classes, dtype=torch.bool, device=out.offsets.device)
-    things[list(class_map.thing_ids)] = True
-    res, start = [], 0
-    pred = out.sem_logits.argmax(1)
-    for s in samples:
-        n = len(s.xyz)
-        sl = slice(start, start + n)
-        start += n
-        xyz = torch.from_numpy(s.xyz).to(out.offsets.device)
-        if use_gt_things:
-            sem = torch.from_numpy(s.sem).to(out.offsets.device)
-            mask = things[sem] & (torch.from_numpy(s.inst).to(sem.device) > 0)
-        else:
-            mask = things[pred[sl]]
-        idx = torch.nonzero(mask).squeeze(1)
-        res.append(
-            {
-                "index": idx,
-                "points": xyz[idx],
-                "centers": xyz[idx] + out.offsets[sl][idx],
-                "features": out.point_features[sl][idx],
-                "inst": torch.from_numpy(s.inst).to(idx.device)[idx],
-            }
-        )
-    return res
+    from panoptic_bench.dsnet.ds_head import shift_instances
+    from panoptic_bench.dsnet.predictor import make_clusterer
+
+    inf = cfg.inference
+    labels, diag = shift_instances(
+        shift,
+        centers,
+        features,
+        points=points,
+        clusterer=make_clusterer(inf.ds_clusterer, inf.ds_bandwidth),
+        max_seeds=cfg.dynamic_shift.max_seeds,
+    )
+    arrays = diag.as_arrays()
+    arrays["candidates"] = np.asarray(cfg.dynamic_shift.bandwidths, dtype=np.float32)
+    return labels, arrays

@@ -173,8 +173,12 @@ class Predictor:
             features=features[torch.from_numpy(things).to(features.device)],
             cfg=self.cfg,
         )
-        _, dense = np.unique(np.asarray(labels), return_inverse=True)
-        inst[things] = filter_small_instances(dense.reshape(-1), self.cfg.inference.min_points)
+        labels = np.asarray(labels, dtype=np.int64)
+        valid = labels >= 0  # noise of a DBSCAN-like seed clusterer gets no instance
+        _, dense = np.unique(labels[valid], return_inverse=True)
+        inst[things[valid]] = filter_small_instances(
+            dense.reshape(-1), self.cfg.inference.min_points
+        )
         fused = consensus_fusion(sem, inst, self.class_map.num_classes) if self.fusion else sem
         return fused, inst, diag
 

@@ -42,8 +42,8 @@ from panoptic_bench.dsnet.config import DSNetConfig, save_config
 from panoptic_bench.dsnet.data import ClassMap, LidarDataset, TrainingSet, open_dataset
 from panoptic_bench.dsnet.pipeline import (
     backbone_forward,
-    class_weights_from_counts,
-    count_classes,
+    class_weights_for,
+    ds_stage_loss,
     stage_loss,
 )
 from panoptic_bench.errors import InputError
@@ -150,8 +150,8 @@ def _make_context(
     train_ds = open_dataset(data_root, cfg.data, "train")
     val_ds = open_dataset(data_root, cfg.data, "val")
     cmap = train_ds.class_map
-    counts = count_classes([train_ds.load(i).sem for i in range(len(train_ds))], cmap.num_classes)
-    weights = class_weights_from_counts(counts, cmap.ignore_ids, cfg.loss.class_weight_power)
+    labels = [train_ds.load(i).sem for i in range(len(train_ds))]
+    weights = class_weights_for(labels, cmap, cfg.loss.class_weight_power)
     run_dir.mkdir(parents=True, exist_ok=True)
     return TrainContext(
         cfg=cfg,
@@ -324,8 +324,6 @@ def _step_loss(stage, model, samples, ctx: TrainContext, weights, frozen: bool) 
     if stage != "ds":
         out = backbone_forward(model["backbone"], samples, ctx.grid, dev)
         return stage_loss(stage, out, samples, ctx.cfg, ctx.class_map, weights).total
-    from panoptic_bench.dsnet.pipeline import ds_stage_loss
-
     with torch.set_grad_enabled(not frozen):
         out = backbone_forward(model["backbone"], samples, ctx.grid, dev)
     loss = ds_stage_loss(model["shift"], out, samples, ctx.cfg, ctx.class_map)
