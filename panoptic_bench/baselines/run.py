@@ -4,7 +4,7 @@ SemanticKITTI: centres ``CENTERS/sequences/XX/centers/NNNNNN.npz`` → predictio
 ``OUT/sequences/XX/predictions/NNNNNN.label`` (scorable by ``panoptic-bench eval semantickitti``).
 nuScenes: centres ``CENTERS/centers/<lidar token>.npz`` → ``OUT/panoptic/<eval set>/<token>_panoptic.npz``
 (key ``data``, uint16; scorable by ``panoptic-bench eval nuscenes``). Also: simulated centres for a
-labelled SemanticKITTI tree (``centers simulate``).
+labelled SemanticKITTI tree or nuScenes dataroot with panoptic labels (``centers simulate``).
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ __all__ = [
     "AssemblyOptions",
     "cluster_nuscenes",
     "cluster_semantickitti",
+    "simulate_centers_nuscenes",
     "simulate_centers_semantickitti",
 ]
 
@@ -251,4 +252,53 @@ def cluster_nuscenes(
     ]
     _map(_nuscenes_job, jobs, workers, "cluster")
     write_json(out_dir / "submission.json", {"meta": SUBMISSION_META})
+    return len(jobs)
+
+
+def _simulate_nuscenes_job(job: tuple[Path, np.ndarray, Path, RegressionNoise, int]) -> None:
+    points_path, panoptic, out_path, noise, seed = job
+    points = np.fromfile(points_path, dtype=np.float32).reshape(-1, 5)
+    sem, inst = panoptic // 1000, panoptic % 1000
+    offset = simulate_offsets(points, sem, inst, NUSCENES_THING_IDS, noise=noise, seed=seed)
+    write_centers(out_path, sem, offset, source=SIMULATED)
+
+
+def simulate_centers_nuscenes(
+    dataroot: str | Path,
+    version: str,
+    eval_set: str,
+    output: str | Path,
+    *,
+    noise: RegressionNoise | None = None,
+    seed: int = 0,
+    workers: int = 1,
+) -> int:
+    """Write "simulated regression" centre files for the keyframes of a nuScenes eval set.
+
+    Needs the dataroot's Panoptic nuScenes labels (``panoptic-bench nuscenes make-labels``). The
+    semantic prediction is the ground truth mapped to the 17 challenge classes; instances are the
+    panoptic instance ids; offsets as :func:`simulate_centers_semantickitti` (seed ``seed + sweep
+    index``). Writes ``output/centers/<lidar token>.npz`` and ``output/simulated.json``.
+
+    Returns
+    -------
+    int
+        Number of sweeps written.
+    """
+    from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar
+    from panoptic_bench.evaluation.nuscenes import ChallengeClasses
+
+    noise = RegressionNoise() if noise is None else noise
+    reader = NuScenesLidar(dataroot, version)
+    lut = ChallengeClasses.from_nusc(reader.nusc).lut
+    jobs = []
+    for k, tok in enumerate(reader.sample_data_tokens(eval_set)):
+        gt = reader.load_panoptic(tok).astype(np.int64)
+        panoptic = np.maximum(lut[gt // 1000], 0) * 1000 + gt % 1000
+        jobs.append(
+            (reader.points_path(tok), panoptic, centers_path_nuscenes(output, tok), noise, seed + k)
+        )
+    _map(_simulate_nuscenes_job, jobs, workers, "simulate centres")
+    meta: dict[str, Any] = {"source": SIMULATED, "seed": seed, "noise": noise.to_dict()}
+    write_json(Path(output) / "simulated.json", meta)
     return len(jobs)

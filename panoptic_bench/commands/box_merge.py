@@ -1,4 +1,4 @@
-"""``panoptic-bench box-merge``: semantic prediction + detector boxes → panoptic (SemanticKITTI)."""
+"""``panoptic-bench box-merge``: semantic prediction + detector boxes → panoptic (both datasets)."""
 
 from __future__ import annotations
 
@@ -38,6 +38,57 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--size-sigma", type=float, default=0.1, help="relative size jitter")
     sim.add_argument("--yaw-sigma", type=float, default=0.05, help="yaw jitter (rad)")
     sim.set_defaults(func=simulate_boxes)
+    _register_nuscenes(sub)
+
+
+def _add_noise_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--miss-rate", type=float, default=0.1, help="probability a GT box is missed")
+    p.add_argument("--fp-rate", type=float, default=0.2, help="false positives per GT box")
+    p.add_argument("--position-sigma", type=float, default=0.2, help="centre jitter (m)")
+    p.add_argument("--size-sigma", type=float, default=0.1, help="relative size jitter")
+    p.add_argument("--yaw-sigma", type=float, default=0.05, help="yaw jitter (rad)")
+
+
+def _add_nuscenes_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--dataset", "--dataroot", dest="dataset", required=True, help="nuScenes dataroot"
+    )
+    p.add_argument("--version", required=True, help="e.g. v1.0-mini")
+    p.add_argument("--eval-set", required=True, help="devkit split: mini_val, val, ...")
+    p.add_argument(
+        "--task", choices=["detection", "tracking"], default="detection",
+        help="submission kind: detection (ids = score rank) or tracking (ids = track ids)",
+    )  # fmt: skip
+
+
+def _register_nuscenes(sub: argparse._SubParsersAction) -> None:
+    nus = sub.add_parser(
+        "nuscenes",
+        help="merge nuScenes lidarseg predictions with a detection/tracking submission JSON",
+        description="Semantic: SEMANTIC/lidarseg/<version suffix or eval-set>/<lidar token>"
+        "_lidarseg.bin (uint8 challenge classes 0..16). Boxes: standard nuScenes detection or "
+        "tracking submission JSON. Writes OUTPUT/panoptic/<eval-set>/<token>_panoptic.npz, "
+        "scorable by 'panoptic-bench eval nuscenes'. --mode devkit reproduces nuscenes-devkit "
+        "get_panoptic_from_seg_det_or_track.py exactly; --mode paper gives every point in a box "
+        "the box's class and instance.",
+    )
+    _add_nuscenes_args(nus)
+    nus.add_argument("--semantic", required=True, help="root holding lidarseg/<...>/*.bin")
+    nus.add_argument("--boxes", required=True, help="detection or tracking submission JSON")
+    nus.add_argument("--mode", choices=["devkit", "paper"], default="paper", help="merge rule")
+    nus.add_argument("--output", required=True, help="prediction root to write")
+    nus.set_defaults(func=merge_nuscenes)
+    sim = sub.add_parser(
+        "simulate-nuscenes",
+        help='write a "simulated detector" nuScenes submission JSON from ground-truth boxes',
+        description="GT boxes of the eval set with centre/size/yaw jitter, misses and false "
+        "positives; meta.source = 'simulated detector' (never a detector result).",
+    )
+    _add_nuscenes_args(sim)
+    _add_noise_args(sim)
+    sim.add_argument("--output", required=True, help="submission JSON to write")
+    sim.set_defaults(func=simulate_nuscenes)
 
 
 def merge_kitti(args: argparse.Namespace) -> int:
@@ -66,4 +117,46 @@ def simulate_boxes(args: argparse.Namespace) -> int:
         args.dataset, out, noise=noise, seed=args.seed, sequences=args.sequences
     )
     print(f"wrote {n} simulated-detector boxes files under {out}/sequences (not a detector result)")
+    return 0
+
+
+def merge_nuscenes(args: argparse.Namespace) -> int:
+    """Handler of ``box-merge nuscenes``."""
+    from panoptic_bench.baselines.box_merge import MergeMode
+    from panoptic_bench.baselines.box_merge_nuscenes import BoxTask, box_merge_nuscenes
+    from panoptic_bench.io import ensure_output_dir
+
+    out = ensure_output_dir(args.output, inputs=(args.dataset, args.semantic))
+    n = box_merge_nuscenes(
+        args.dataset, args.version, args.eval_set, args.semantic, args.boxes, out,
+        MergeMode(args.mode), task=BoxTask(args.task),
+    )  # fmt: skip
+    print(f"box-merge ({args.mode}): wrote {n} predictions under {out}/panoptic/{args.eval_set}")
+    return 0
+
+
+def simulate_nuscenes(args: argparse.Namespace) -> int:
+    """Handler of ``box-merge simulate-nuscenes``."""
+    from pathlib import Path
+
+    from panoptic_bench.baselines.box_merge import DetectorNoise
+    from panoptic_bench.baselines.box_merge_nuscenes import BoxTask
+    from panoptic_bench.baselines.simulated_detector_nuscenes import (
+        write_simulated_submission_nuscenes,
+    )
+    from panoptic_bench.errors import InputError
+
+    noise = DetectorNoise(
+        args.position_sigma, args.size_sigma, args.yaw_sigma, args.miss_rate, args.fp_rate
+    )
+    out = Path(args.output).resolve()
+    if out.is_dir():
+        raise InputError("--output must be a JSON file path, not a directory", out)
+    if out.is_relative_to(Path(args.dataset).resolve()):
+        raise InputError("refusing to write inside the input dataroot", out)
+    n = write_simulated_submission_nuscenes(
+        args.dataset, args.version, args.eval_set, out, noise=noise, seed=args.seed,
+        task=BoxTask(args.task),
+    )  # fmt: skip
+    print(f"wrote {n} simulated-detector boxes to {out} (not a detector result)")
     return 0

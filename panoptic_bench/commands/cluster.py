@@ -65,7 +65,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Reads CENTERS/centers/<lidar token>.npz and writes "
         "OUTPUT/panoptic/<eval-set>/<token>_panoptic.npz.",
     )
-    nus.add_argument("--dataset", required=True, help="nuScenes dataroot")
+    nus.add_argument(
+        "--dataset", "--dataroot", dest="dataset", required=True, help="nuScenes dataroot"
+    )
     nus.add_argument("--version", required=True, help="e.g. v1.0-mini")
     nus.add_argument("--eval-set", required=True, help="devkit split: mini_val, val, ...")
     nus.add_argument("--centers", required=True, help="root of the regressed-centre .npz files")
