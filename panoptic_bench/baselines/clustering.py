@@ -18,11 +18,9 @@ from enum import StrEnum
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from panoptic_bench.baselines.meanshift import MeanShift, Noise, resolve_noise
+from panoptic_bench.baselines.radius_graph import radius_components
 
 __all__ = [
     "BACKBONE_MEANSHIFT_BANDWIDTH",
@@ -88,7 +86,9 @@ class BFS(_Estimator):
 
     Points closer than ``radius`` (inclusive) are linked; each connected component is a cluster.
     Components are numbered by their lowest point index. There is no noise: an isolated point is
-    its own cluster.
+    its own cluster. Computed without listing every close pair
+    (:func:`~panoptic_bench.baselines.radius_graph.radius_components`: grid cells of side
+    ``radius / sqrt(d)`` merged first, exact same components).
 
     Parameters
     ----------
@@ -116,10 +116,7 @@ class BFS(_Estimator):
         if n == 0:
             self.labels_ = np.zeros(0, dtype=np.int64)
             return self
-        pairs = cKDTree(X).query_pairs(self.radius, output_type="ndarray")
-        graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), (n, n))
-        _, labels = connected_components(graph, directed=False)
-        self.labels_ = labels.astype(np.int64)
+        self.labels_ = radius_components(X, self.radius)
         return self
 
 
