@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from panoptic_bench.demo import steps
+from panoptic_bench.demo.boxmerge import BOX_MERGE_NOTE, box_merge_semantickitti_run
 from panoptic_bench.demo.config import CLUSTERINGS, ClusteringSpec
 from panoptic_bench.demo.evaluate import evaluate_semantickitti_run
 
@@ -144,7 +145,7 @@ def run_kitti_methods(
     workers: int = 1,
     use_checkpoint: bool = True,
 ) -> None:
-    """Regression, the four clusterings and their evaluation on ``target``; appends run dirs.
+    """Regression, the four clusterings, box-merge and their evaluation; appends run dirs.
 
     The mean-shift run also gets the Fig. 3a/3b inputs (``analysis.json``) and a bird's-eye
     view (``bev.npz``) of the first scan.
@@ -181,6 +182,21 @@ def run_kitti_methods(
             result.runs.append(run)
         if spec.method == "meanshift" and fusion:
             figure_run = (run, pred)
+    with stages("box-merge with a simulated detector: merge and evaluate"):
+        pred = ws.predictions(f"{target.prefix}-boxmerge")
+        box_merge_semantickitti_run(
+            target.dataset, centres, target.sequences, ws.work / f"{target.prefix}-boxes", pred,
+            seed=target.seed,
+        )  # fmt: skip
+        semantics = "backbone prediction" if network else "ground truth (simulated regression)"
+        notes = BOX_MERGE_NOTE.format(seed=target.seed, semantics=semantics)
+        method = "Box-merge (simulated detector)"
+        run = ws.runs / f"{target.prefix}-boxmerge"
+        evaluate_semantickitti_run(
+            target.dataset, pred, target.sequences, run, _meta(target, method, notes, {}),
+            workers=workers, show=ws.show,
+        )  # fmt: skip
+        result.runs.append(run)
     with stages("Fig. 3a/3b statistics and bird's-eye view"):
         _figure_inputs(target, centres, *figure_run)
 

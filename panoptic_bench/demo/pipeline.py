@@ -6,7 +6,8 @@ Stages (each a function of :mod:`panoptic_bench.demo.steps` / :mod:`~panoptic_be
    ``v1.0-mini`` dataroot; 2. build the Panoptic nuScenes labels; 3. regressed centres on the
    validation scans: DS-Net inference with the shipped checkpoint when there is one, otherwise
    the *simulated regression* of the baselines (labelled so in every row); 4. the four
-   clusterings (BFS, DBSCAN, HDBSCAN, mean shift) on the same centres; 5. every method scored by
+   clusterings (BFS, DBSCAN, HDBSCAN, mean shift) on the same centres, and box-merge of the same
+   semantics with a simulated detector's boxes; 5. every method scored by
    the project's evaluators into ``DIR/runs/<name>`` (``scores.json`` + ``run.json``), with the
    Fig. 3a/3b inputs and a bird's-eye view; 6. :func:`~panoptic_bench.reports.index.build_report`
    into ``DIR``.
@@ -21,6 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from panoptic_bench.demo import steps
+from panoptic_bench.demo.boxmerge import BOX_MERGE_NOTE, box_merge_nuscenes_run
 from panoptic_bench.demo.config import CLUSTERINGS, FULL, DemoSize
 from panoptic_bench.demo.evaluate import evaluate_nuscenes_run
 from panoptic_bench.demo.kitti import SIMULATED_NOTE, DemoResult, KittiTarget, run_kitti_methods
@@ -70,7 +72,9 @@ def _nuscenes(ws, size, workers, stages, result) -> None:
     eval_set = steps.NUS_EVAL_SET
     centres = ws.centres("nuscenes-simulated")
     with stages("simulated regression (nuScenes format, not a network result)"):
-        n = steps.simulate_nuscenes_centres(ws.nuscenes, eval_set, centres, seed=size.seed)
+        n = steps.simulate_nuscenes_centres(
+            ws.nuscenes, eval_set, centres, seed=size.seed, workers=workers
+        )
     data = f"synthetic nuScenes {steps.NUS_VERSION} {eval_set} ({n} sweeps)"
     for spec in CLUSTERINGS:
         with stages(f"{spec.describe()} on nuScenes: cluster and evaluate"):
@@ -92,9 +96,26 @@ def _nuscenes(ws, size, workers, stages, result) -> None:
                 workers=workers, show=ws.show,
             )  # fmt: skip
             result.runs.append(run)
-    result.missing.append(
-        "box-merge with a simulated detector: no box-merge baseline in panoptic_bench.baselines yet"
-    )
+    with stages("box-merge with a simulated detector on nuScenes: merge and evaluate"):
+        pred = ws.predictions("nuscenes-boxmerge")
+        box_merge_nuscenes_run(
+            ws.nuscenes, steps.NUS_VERSION, eval_set, centres, ws.work / "nuscenes-boxes", pred,
+            seed=size.seed,
+        )  # fmt: skip
+        run = ws.runs / "nuscenes-boxmerge"
+        semantics = "ground truth (simulated regression)"
+        meta = {
+            "method": "Box-merge (simulated detector)",
+            "dataset": "nuscenes",
+            "split": eval_set,
+            "data": data,
+            "notes": BOX_MERGE_NOTE.format(seed=size.seed, semantics=semantics),
+        }
+        evaluate_nuscenes_run(
+            ws.nuscenes, steps.NUS_VERSION, eval_set, pred, run, meta,
+            workers=workers, show=ws.show,
+        )  # fmt: skip
+        result.runs.append(run)
 
 
 def run_demo(

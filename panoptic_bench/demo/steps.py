@@ -12,9 +12,6 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
-from tqdm import tqdm
-
 from panoptic_bench.demo.config import ClusteringSpec, DemoSize
 
 __all__ = [
@@ -178,43 +175,26 @@ def simulate_semantickitti_centres(
     )
 
 
-def nuscenes_ground_truth(reader, token: str, lut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Challenge classes (0..16) and instance ids of one sweep's panoptic ground truth.
-
-    Returns
-    -------
-    sem : ndarray of shape (n,), int64
-    inst : ndarray of shape (n,), int64
-        Per-scene instance id (0 = none).
-    """
-    panoptic = reader.load_panoptic(token).astype(np.int64)
-    return lut[panoptic // 1000], panoptic % 1000
-
-
 def simulate_nuscenes_centres(
-    dataroot: Path, eval_set: str, out: Path, *, seed: int, version: str = NUS_VERSION
+    dataroot: Path,
+    eval_set: str,
+    out: Path,
+    *,
+    seed: int,
+    workers: int = 1,
+    version: str = NUS_VERSION,
 ) -> int:
     """Simulated regression for the keyframes of ``eval_set`` from their panoptic ground truth.
 
-    Writes ``out/centers/<lidar token>.npz`` (``sem`` = challenge class of the ground truth,
-    offsets from :func:`~panoptic_bench.baselines.regression.simulate_offsets` with seed
-    ``seed + k`` for the k-th keyframe). Never a network result. Returns the number of sweeps.
+    Same as ``panoptic-bench centers simulate nuscenes`` (``out/centers/<lidar token>.npz``;
+    semantics = ground truth in the challenge classes). Never a network result. Returns the
+    number of sweeps.
     """
-    from panoptic_bench.baselines.centers import centers_path_nuscenes, write_centers
-    from panoptic_bench.baselines.regression import SIMULATED, simulate_offsets
-    from panoptic_bench.baselines.run import NUSCENES_THING_IDS
-    from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar
-    from panoptic_bench.evaluation.nuscenes import ChallengeClasses
+    from panoptic_bench.baselines.run import simulate_centers_nuscenes
 
-    reader = NuScenesLidar(dataroot, version)
-    lut = ChallengeClasses.from_nusc(reader.nusc).lut
-    tokens = reader.sample_data_tokens(eval_set)
-    for k, tok in enumerate(tqdm(tokens, desc="simulate centres", unit="sweep", disable=None)):
-        points = reader.load_points(tok)
-        sem, inst = nuscenes_ground_truth(reader, tok, lut)
-        offset = simulate_offsets(points, sem, inst, NUSCENES_THING_IDS, seed=seed + k)
-        write_centers(centers_path_nuscenes(out, tok), sem, offset, source=SIMULATED)
-    return len(tokens)
+    return simulate_centers_nuscenes(
+        dataroot, version, eval_set, out, seed=seed, workers=workers
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- clustering
