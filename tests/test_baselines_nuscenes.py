@@ -12,6 +12,7 @@ from nuscenes_world import real_sweep, write_mini
 
 from panoptic_bench.baselines.box_merge import DetectorNoise, MergeMode
 from panoptic_bench.baselines.box_merge_nuscenes import BoxTask, box_merge_nuscenes
+from panoptic_bench.baselines.centers import write_centers
 from panoptic_bench.baselines.simulated_detector_nuscenes import simulate_submission_nuscenes
 from panoptic_bench.cli import main
 from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar
@@ -248,3 +249,19 @@ def test_box_merge_bad_inputs_exit_2(world, tmp_path, capsys):
 def _last_err(world, out, tmp_path, capsys, name):
     assert main(_merge_argv(world, out, boxes=tmp_path / f"{name}.json")) == 2
     return capsys.readouterr().err
+
+
+def test_cluster_nuscenes_bad_centres_exit_2(world, tmp_path, capsys):
+    tokens = world["tokens"]
+    centers = tmp_path / "centers"
+    for tok in tokens:
+        write_centers(centers / "centers" / f"{tok}.npz", np.zeros(7, np.uint8), np.zeros((7, 3)))
+    argv = ["cluster", "nuscenes", "--dataset", str(world["root"]), "--version", VERSION,
+            "--eval-set", EVAL_SET, "--centers", str(centers), "--method", "bfs",
+            "--output", str(tmp_path / "pred")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{tokens[0]}.npz" in err and "7 points" in err
+    (centers / "centers" / f"{tokens[1]}.npz").unlink()
+    assert main(argv) == 2
+    assert f"{tokens[1]}.npz" in capsys.readouterr().err

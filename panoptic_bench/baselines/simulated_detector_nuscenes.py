@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from panoptic_bench.baselines.box_merge import SIMULATED_DETECTOR, DetectorNoise
 from panoptic_bench.baselines.box_merge_nuscenes import BoxTask
@@ -112,7 +113,7 @@ def simulate_submission_nuscenes(
     rng = np.random.default_rng(seed)
     results: dict[str, list[dict]] = {}
     n_fp_total = 0
-    for sd_token in reader.sample_data_tokens(eval_set):
+    for sd_token in tqdm(reader.sample_data_tokens(eval_set), desc="simulate boxes", disable=None):
         sample = nusc.get("sample_data", sd_token)["sample_token"]
         anns = [nusc.get("sample_annotation", t) for t in nusc.get("sample", sample)["anns"]]
         anns = [a for a in anns if a["category_name"] in by_category]
