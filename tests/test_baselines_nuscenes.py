@@ -227,6 +227,9 @@ def test_box_merge_bad_inputs_exit_2(world, tmp_path, capsys):
         err = capsys.readouterr().err
         assert str(path) in err and "Traceback" not in err, (name, err)
     assert "not samples of v1.0-mini" in _last_err(world, out, tmp_path, capsys, "unknown-token")
+    argv = _merge_argv(world, out) + ["--task", "tracking"]  # a detection JSON as tracking
+    assert main(argv) == 2
+    assert "pass --task detection" in capsys.readouterr().err
     # lidarseg predictions: one too short, one missing
     seg = tmp_path / "seg/lidarseg/mini"
     seg.mkdir(parents=True)

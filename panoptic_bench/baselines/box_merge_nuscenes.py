@@ -144,10 +144,14 @@ def load_boxes(path: str | Path, task: BoxTask, nusc: Any) -> tuple[dict[str, li
     except AssertionError as exc:
         raise InputError(f"invalid {task} submission: {exc}", path) from None
     except KeyError as exc:
-        raise InputError(f"a {task} box lacks the field {exc}", path) from None
+        other = "detection" if task is BoxTask.TRACKING else "tracking"
+        raise InputError(
+            f"a {task} box lacks the field {exc}; for a {other} submission pass --task {other}",
+            path,
+        ) from None
     except (TypeError, ValueError) as exc:
         raise InputError(f"invalid {task} box value ({exc})", path) from None
-    known = nusc._token2ind["sample"]
+    known = {rec["token"] for rec in nusc.sample}
     unknown = [t for t in evalboxes.sample_tokens if t not in known]
     if unknown:
         raise InputError(
