@@ -42,7 +42,8 @@ def prepare_workspace(out: str | Path, work: str | Path | None) -> steps.Workspa
     """
     from panoptic_bench.io import ensure_output_dir, write_text
 
-    out = ensure_output_dir(out)
+    ensure_output_dir(out)
+    out = Path(out)  # as given: recorded paths stay relative, the committed reports portable
     if work is None:
         ws = steps.Workspace(out, out / "work", (out / "work").as_posix())
     else:
