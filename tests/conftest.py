@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+# One intra-op thread per test process: the suite's tensors are tiny, and on a 2-core machine
+# OpenMP spinning threads turn milliseconds into seconds when the other core is busy.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("NUMBA_NUM_THREADS", "2")
 
 import pytest
 
