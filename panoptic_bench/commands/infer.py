@@ -36,6 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def handler(args: argparse.Namespace) -> int:
+    import shlex
+    import sys
+
     import torch
 
     from panoptic_bench.dsnet.config import Clusterer
@@ -58,6 +61,7 @@ def handler(args: argparse.Namespace) -> int:
         max_samples=args.max_scans,
         device=args.device,
         progress=not args.no_progress,
+        command=shlex.join(["panoptic-bench", *sys.argv[1:]]),
     )
     print(
         f"{summary.method}: {summary.num_scans} scans, {summary.ms_per_frame:.1f} ms/frame "

@@ -21,7 +21,6 @@ Example
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,8 +136,11 @@ def run_inference(
     overwrite: bool = True,
     device: str = "cpu",
     progress: bool = True,
+    command: str | None = None,
 ) -> InferenceSummary:
     """Predict ``split`` of ``data_root`` with a checkpoint and write the prediction tree.
+
+    ``command`` (the shell command line, if any) is recorded in ``run.json``.
 
     Returns
     -------
@@ -167,10 +169,17 @@ def run_inference(
         p = pred.predict(sample)
         times.append(time.perf_counter() - t0)
         _write_scan(out, sample.key, p, split, nus)
+        if p.shift is not None and not (out / "shift_iterations.npz").exists():
+            _write_fig6(out, sample, p)
     ms = 1000.0 * float(np.mean(times))
     method = method_label(pred, ckpt, clusterer)
     write_json(out / "timing.json", {"scans": len(times), "ms_per_frame": ms, "device": device})
-    write_json(out / "run.json", _run_meta(method, ckpt, data_root, split, len(times), ms))
+    from panoptic_bench.reports.inputs import write_run_meta
+
+    meta = _run_meta(method, pred, ckpt, data_root, split, len(times), ms)
+    if command:
+        meta["command"] = command
+    write_run_meta(out, meta)
     return InferenceSummary(out, len(times), ms, method)
 
 
@@ -197,8 +206,69 @@ def _write_scan(out: Path, key: tuple[str, ...], p: ScanPrediction, split: str, 
         write_npz(ds_path, **p.shift)
 
 
+def _write_fig6(out: Path, sample, p: ScanPrediction) -> None:
+    """``shift_iterations.npz`` (report Fig. 6) from the first DS-Net scan.
+
+    Panel k shows the seeds after k iterations (panel 0 = regressed centres) coloured by the
+    bandwidth they use in the next iteration (the last panel repeats the last iteration's).
+    """
+    from panoptic_bench.reports.inputs import write_shift_iterations
+
+    bw = p.shift["bandwidths"]
+    if bw.size == 0:
+        return
+    panels = np.concatenate([bw, bw[-1:]], axis=0)
+    things = np.isin(p.sem_raw, np.asarray(p.thing_ids))
+    write_shift_iterations(out, sample.xyz[things], p.shift["positions"], panels)
+
+
+CLUSTER_BARS = {
+    Clusterer.MEANSHIFT: "Mean Shift",
+    Clusterer.BFS: "BFS",
+    Clusterer.DBSCAN: "DBSCAN",
+    Clusterer.HDBSCAN: "HDBSCAN",
+}
+
+
+def ablation_tags(pred: Predictor, cfg: DSNetConfig) -> dict[str, str]:
+    """``run.json`` ablation bars (Fig. 4a/4b/4c) this prediction stands for."""
+    from panoptic_bench.dsnet.config import ShiftKernel
+
+    if pred.shift is not None:
+        tags = {"clustering": "DS"} if pred.fusion else {}
+        tags["framework"] = "+ DS" if pred.fusion else "+ DS (no fusion)"
+        flat = cfg.dynamic_shift.kernel is ShiftKernel.FLAT
+        tags["bandwidth_learning"] = "weighted candidates" if flat else "direct regression"
+        return tags
+    kind = next((k for k, v in _kinds().items() if isinstance(pred.clusterer, v)), None)
+    if not pred.fusion:
+        return {"framework": "backbone"} if kind is Clusterer.MEANSHIFT else {}
+    tags = {"clustering": CLUSTER_BARS[kind]} if kind is not None else {}
+    if kind is Clusterer.MEANSHIFT and pred.clusterer.bandwidth == cfg.inference.bandwidth:
+        tags["framework"] = "+ fusion"
+    return tags
+
+
+def _kinds() -> dict[Clusterer, type]:
+    from panoptic_bench.baselines import clustering
+    from panoptic_bench.baselines.meanshift import MeanShift
+
+    return {
+        Clusterer.MEANSHIFT: MeanShift,
+        Clusterer.BFS: clustering.BFS,
+        Clusterer.DBSCAN: clustering.DBSCAN,
+        Clusterer.HDBSCAN: clustering.HDBSCAN,
+    }
+
+
 def _run_meta(
-    method: str, ckpt: Checkpoint, data_root: str | Path, split: str, n: int, ms: float
+    method: str,
+    pred: Predictor,
+    ckpt: Checkpoint,
+    data_root: str | Path,
+    split: str,
+    n: int,
+    ms: float,
 ) -> dict[str, Any]:
     meta: dict[str, Any] = {
         "method": method,
@@ -206,9 +276,9 @@ def _run_meta(
         "split": split,
         "data": f"{data_root} split {split} ({n} scans)",
         "notes": f"checkpoint {ckpt.path} (stage {ckpt.stage}, epoch {ckpt.epoch}); {ms:.0f} ms/frame",
-        "command": " ".join(["panoptic-bench", *sys.argv[1:]]) if sys.argv else "",
+        "ablation": ablation_tags(pred, ckpt.config),
     }
-    if method.startswith("DS-Net"):
+    if pred.shift is not None:
         ds = ckpt.config.dynamic_shift
         meta["bandwidths"] = list(ds.bandwidths)
         meta["iterations"] = ds.iterations

@@ -44,13 +44,15 @@ class ScanPrediction:
         Instance ids (1..K on thing points, 0 elsewhere).
     sem_raw : ndarray of shape (n,), uint8
         Backbone semantic prediction before fusion.
-    offsets : ndarray of shape (n,), float32 of shape (n, 3)
+    offsets : ndarray of shape (n, 3), float32
         Regressed offsets (centre = xyz + offset).
     features : ndarray of shape (n, F), float16 or None
         Backbone point features (kept only when asked for).
     shift : dict of str to ndarray, optional
-        DS-Net diagnostics: ``seed_index`` (M,), ``weights`` (I, M, l), ``bandwidth`` (I, M),
-        ``trajectory`` (I + 1, M, 3), ``bandwidths`` (l,).
+        DS-Net diagnostics of :func:`panoptic_bench.dsnet.pipeline.ds_cluster` (seed indices
+        into the predicted thing points, trajectories, weights, implied bandwidths).
+    thing_ids : tuple of int
+        Thing classes (the thing points are those with ``sem_raw`` in it).
     """
 
     sem: np.ndarray
@@ -59,6 +61,7 @@ class ScanPrediction:
     offsets: np.ndarray
     features: np.ndarray | None = None
     shift: dict[str, np.ndarray] | None = field(default=None)
+    thing_ids: tuple[int, ...] = ()
 
 
 def make_clusterer(kind: Clusterer, bandwidth: float) -> Any:
@@ -154,6 +157,7 @@ class Predictor:
             offsets,
             feats,
             diag,
+            self.class_map.thing_ids,
         )
 
     def _dynamic_shift(self, sample, sem, offsets, features):

@@ -47,7 +47,7 @@ from panoptic_bench.dsnet.pipeline import (
     stage_loss,
 )
 from panoptic_bench.errors import InputError
-from panoptic_bench.io import write_json, write_text
+from panoptic_bench.io import write_text
 
 __all__ = ["TrainContext", "train", "run_stage", "train_one_epoch"]
 
@@ -167,16 +167,17 @@ def _make_context(
 
 
 def _write_run_files(ctx: TrainContext, data_root: str | Path, notes: str) -> None:
+    from panoptic_bench.reports.inputs import write_run_meta
+
     save_config(ctx.cfg, ctx.run_dir / "config.yaml")
-    write_json(
-        ctx.run_dir / "run.json",
-        {
-            "method": "DS-Net (training run)",
-            "dataset": ctx.class_map.dataset,
-            "data": str(data_root),
-            "notes": notes or f"{len(ctx.train_set)} train / {len(ctx.val_set)} val samples",
-        },
-    )
+    default = f"{len(ctx.train_set)} train / {len(ctx.val_set)} val samples"
+    meta = {
+        "method": "DS-Net (training run)",
+        "dataset": ctx.class_map.dataset,
+        "data": str(data_root),
+        "notes": notes or default,
+    }
+    write_run_meta(ctx.run_dir, meta)
 
 
 def checkpoint_path(run_dir: Path, stage: str) -> Path:

@@ -1,0 +1,57 @@
+"""``panoptic-bench checkpoint``: inspect a DS-Net checkpoint or export a small release copy."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "checkpoint",
+        help="show or export DS-Net checkpoints",
+        description="Inspect a checkpoint written by `train`, or export it for inference.",
+    )
+    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    show = sub.add_parser("show", help="stage, epoch, class map, metrics and config")
+    show.add_argument("checkpoint")
+    show.set_defaults(func=show_handler)
+    exp = sub.add_parser(
+        "export", help="copy without optimizer/RNG state (e.g. panoptic_bench/checkpoints/*.pt)"
+    )
+    exp.add_argument("checkpoint")
+    exp.add_argument("--out", required=True, help="destination .pt")
+    exp.add_argument("--half", action="store_true", help="store weights as float16")
+    exp.set_defaults(func=export_handler)
+
+
+def show_handler(args: argparse.Namespace) -> int:
+    import yaml
+
+    from panoptic_bench.dsnet.checkpoint import load_checkpoint
+
+    ck = load_checkpoint(args.checkpoint)
+    n_params = sum(v.numel() for v in ck.backbone.values() if v.is_floating_point())
+    print(
+        f"stage {ck.stage}, epoch {ck.epoch}, dataset {ck.class_map.dataset}, "
+        f"{ck.class_map.num_classes} classes, {n_params / 1e6:.2f} M backbone values, "
+        f"dynamic shifting: {'yes' if ck.has_shift else 'no'}"
+    )
+    for row in ck.metrics:
+        print(
+            "  "
+            + ", ".join(
+                f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()
+            )
+        )
+    print(yaml.safe_dump(ck.config.to_dict(), sort_keys=False), end="")
+    return 0
+
+
+def export_handler(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from panoptic_bench.dsnet.checkpoint import export_checkpoint
+
+    out = export_checkpoint(args.checkpoint, args.out, half=args.half)
+    print(f"{out} ({Path(out).stat().st_size / 1e6:.1f} MB)")
+    return 0

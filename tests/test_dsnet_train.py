@@ -1,0 +1,252 @@
+"""DS-Net training and inference: resume bit-for-bit, DDP (gloo, 2 processes), train→infer→eval.
+
+Everything runs on a tiny hand-made SemanticKITTI-format world (``dsnet_tiny_world``) with a
+tiny network (init_size 4 on a 32 x 32 x 8 grid), so the module stays well under a minute.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from panoptic_bench.cli import main as cli
+from panoptic_bench.dsnet.checkpoint import load_checkpoint
+from panoptic_bench.dsnet.config import DSNetConfig, save_config
+from panoptic_bench.dsnet.train import train
+
+sys.path.insert(0, str(Path(__file__).parent))
+from dsnet_tiny_world import write_tiny_world  # noqa: E402
+
+TINY = {
+    "grid": {"size": [32, 32, 8]},
+    "model": {
+        "init_size": 4,
+        "point_hidden": [16],
+        "point_feature_dim": 16,
+        "voxel_feature_dim": 8,
+        "offset_hidden": 8,
+    },
+    "optim": {"batch_size": 2, "epochs_semantic": 1, "epochs_offset": 1, "epochs_ds": 1},
+    "dynamic_shift": {"max_seeds": 64, "iterations": 2, "bandwidths": [0.5, 2.0]},
+    "loss": {"ds_iteration_weights": [1.0, 1.0]},
+    "inference": {"min_points": 5, "ds_bandwidth": 1.0},
+    "data": {"train_sequences": ["00"], "val_sequences": ["08"]},
+}
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> Path:
+    return write_tiny_world(tmp_path_factory.mktemp("tiny"), {"00": 4, "08": 2})
+
+
+@pytest.fixture(scope="module")
+def cfg() -> DSNetConfig:
+    return DSNetConfig.from_dict(TINY)
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def _rows(run: Path) -> list[dict]:
+    with open(run / "metrics.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _same_state(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_resume_is_bit_for_bit(world: Path, cfg: DSNetConfig, tmp_path: Path):
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    train(cfg, world, straight, stage="semantic", epochs=2, progress=False)
+    train(cfg, world, resumed, stage="semantic", epochs=1, progress=False)
+    assert load_checkpoint(resumed / "checkpoints" / "semantic.pt").epoch == 1
+    train(cfg, world, resumed, stage="semantic", epochs=2, resume=True, progress=False)
+    a = load_checkpoint(straight / "checkpoints" / "semantic.pt")
+    b = load_checkpoint(resumed / "checkpoints" / "semantic.pt")
+    assert a.epoch == b.epoch == 2
+    assert _same_state(a.backbone, b.backbone)
+    assert _same_state(a.optimizer["state"][0], b.optimizer["state"][0])
+    drop = ("seconds",)
+    assert [{k: v for k, v in r.items() if k not in drop} for r in _rows(straight)] == [
+        {k: v for k, v in r.items() if k not in drop} for r in _rows(resumed)
+    ]
+    # and training did change the weights
+    fresh = tmp_path / "zero"
+    train(cfg, world, fresh, stage="semantic", epochs=0, progress=False)
+    c = load_checkpoint(fresh / "checkpoints" / "semantic.pt")
+    assert not _same_state(a.backbone, c.backbone)
+
+
+def test_checkpoint_contents(world: Path, cfg: DSNetConfig, tmp_path: Path):
+    train(cfg, world, tmp_path, stage="semantic", epochs=1, progress=False)
+    ck = load_checkpoint(tmp_path / "checkpoints" / "semantic.pt")
+    assert ck.config == cfg
+    assert ck.class_map.num_classes == 20 and ck.class_map.thing_ids == tuple(range(1, 9))
+    assert ck.class_weights[0] == 0.0 and len(ck.class_weights) == 20
+    assert ck.metrics[0]["epoch"] == 1 and 0.0 <= ck.metrics[0]["val_mIoU"] <= 1.0
+    meta = json.loads((tmp_path / "run.json").read_text())
+    assert set(meta) == {"method", "dataset", "data", "notes"}
+    # release copy: no optimizer / RNG state, float16 weights, still loads for inference
+    src = tmp_path / "checkpoints" / "semantic.pt"
+    assert cli(["checkpoint", "export", str(src), "--out", str(tmp_path / "x.pt"), "--half"]) == 0
+    small = load_checkpoint(tmp_path / "x.pt")
+    assert small.optimizer is None and small.rng is None
+    assert (tmp_path / "x.pt").stat().st_size < src.stat().st_size / 3
+    key = next(k for k, v in ck.backbone.items() if v.is_floating_point() and v.numel() > 100)
+    assert torch.allclose(small.backbone[key].float(), ck.backbone[key], atol=1e-2)
+    assert cli(["checkpoint", "show", str(tmp_path / "x.pt")]) == 0
+
+
+def _eval_scores(world: Path, pred: Path, out: Path) -> dict:
+    args = ["eval", "semantickitti", "--dataset", str(world), "--predictions", str(pred)]
+    args += ["--sequences", "08", "--min-inst-points", "5", "--output", str(out)]
+    assert cli(args) == 0
+    return json.loads((out / "scores.json").read_text())["all"]
+
+
+def test_train_infer_eval_smoke(world: Path, cfg: DSNetConfig, tmp_path: Path):
+    from panoptic_bench.baselines.centers import read_centers
+    from panoptic_bench.datasets.semantickitti import list_scans, read_labels
+    from panoptic_bench.dsnet.infer import load_predictor
+    from panoptic_bench.dsnet.predictor import evaluate_dataset
+
+    cfg_path = tmp_path / "tiny.yaml"
+    save_config(cfg, cfg_path)
+    run = tmp_path / "run"
+    args = ["train", "--config", str(cfg_path), "--data", str(world), "--out", str(run)]
+    assert cli([*args, "--stage", "semantic", "--no-progress"]) == 0
+    assert cli([*args, "--stage", "offset", "--no-progress"]) == 0
+    ckpt = run / "checkpoints" / "offset.pt"
+    pred = tmp_path / "pred"
+    infer = ["infer", "--checkpoint", str(ckpt), "--data", str(world), "--split", "08"]
+    assert cli([*infer, "--out", str(pred), "--no-progress"]) == 0
+    for ref in list_scans(world, sequences=["08"]):
+        n = len(read_labels(ref.label))
+        assert (
+            len(read_labels(pred / "sequences" / "08" / "predictions" / f"{ref.frame}.label")) == n
+        )
+        read_centers(pred / "sequences" / "08" / "centers" / f"{ref.frame}.npz", n_points=n)
+    meta = json.loads((pred / "run.json").read_text())
+    assert meta["method"] == "Backbone with Fusion"
+    scores = _eval_scores(world, pred, tmp_path / "eval")
+    # the written tree scores exactly as the in-memory evaluation used for validation
+    predictor, ck = load_predictor(ckpt)
+    from panoptic_bench.dsnet.infer import open_split
+
+    mem = evaluate_dataset(predictor, open_split(ck.config, world, "08"), progress=False)
+    for key in ("PQ", "PQ_th", "PQ_st", "mIoU"):
+        assert scores[key] == pytest.approx(mem[key], abs=1e-9)
+    assert float(_rows(run)[-1]["val_PQ"]) == pytest.approx(mem["PQ"], abs=1e-5)
+
+
+def test_ds_stage_and_dynamic_shift_inference(world: Path, cfg: DSNetConfig, tmp_path: Path):
+    cfg_path = tmp_path / "tiny.yaml"
+    save_config(cfg, cfg_path)
+    run = tmp_path / "run"
+    args = ["train", "--config", str(cfg_path), "--data", str(world), "--out", str(run)]
+    assert cli([*args, "--stage", "all", "--no-progress"]) == 0
+    ckpt = run / "checkpoints" / "offset.pt"
+    # stage ds ran on top with the backbone frozen; DS-Net inference writes the diagnostics
+    ds_ckpt = load_checkpoint(run / "checkpoints" / "ds.pt")
+    assert ds_ckpt.has_shift and _same_state(ds_ckpt.backbone, load_checkpoint(ckpt).backbone)
+    ds_infer = ["infer", "--checkpoint", str(run / "checkpoints" / "ds.pt"), "--data", str(world)]
+    ds_infer += ["--split", "08", "--no-progress"]
+    assert cli([*ds_infer, "--out", str(tmp_path / "ds")]) == 0
+    assert json.loads((tmp_path / "ds" / "run.json").read_text())["method"] == "DS-Net"
+    diag = np.load(tmp_path / "ds" / "sequences" / "08" / "dynamic_shift" / "000000.npz")
+    m = len(diag["seed_index"])
+    assert 0 < m <= cfg.dynamic_shift.max_seeds
+    assert diag["positions"].shape == (3, m, 3) and diag["weights"].shape == (2, m, 2)
+    assert np.allclose(diag["weights"].sum(-1), 1.0, atol=1e-5)
+    bw = diag["weights"] @ diag["candidates"]
+    assert np.allclose(diag["bandwidths"], bw, atol=1e-5)
+    _eval_scores(world, tmp_path / "ds", tmp_path / "ds_eval")
+    # --clusterer on a DS-Net checkpoint: same regressed centres, another clustering
+    assert cli([*ds_infer, "--out", str(tmp_path / "bfs"), "--clusterer", "bfs"]) == 0
+    assert not (tmp_path / "bfs" / "sequences" / "08" / "dynamic_shift").exists()
+    for name in ("000000.npz", "000001.npz"):
+        a = np.load(tmp_path / "ds" / "sequences" / "08" / "centers" / name)
+        b = np.load(tmp_path / "bfs" / "sequences" / "08" / "centers" / name)
+        assert np.array_equal(a["offset"], b["offset"]) and np.array_equal(a["sem"], b["sem"])
+
+
+def test_ddp_gloo_two_processes(world: Path, cfg: DSNetConfig, tmp_path: Path):
+    from panoptic_bench.dsnet.infer import load_predictor, open_split
+    from panoptic_bench.dsnet.predictor import evaluate_dataset
+
+    cfg_path = tmp_path / "tiny.yaml"
+    save_config(cfg.replace(optim={"batch_size": 1}), cfg_path)
+    run = tmp_path / "ddp"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
+    cmd += ["-m", "panoptic_bench", "train", "--config", str(cfg_path), "--data", str(world)]
+    cmd += ["--out", str(run), "--stage", "semantic", "--device", "cpu", "--no-progress"]
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=240)
+    assert res.returncode == 0, res.stderr[-3000:]
+    ckpt = load_checkpoint(run / "checkpoints" / "semantic.pt")
+    assert ckpt.epoch == 1
+    # validation was split over the two ranks and all-reduced: equal to one process on all scans
+    predictor, ck = load_predictor(ckpt)
+    mem = evaluate_dataset(
+        predictor, open_split(ck.config, world, "08"), panoptic=False, progress=False
+    )
+    assert ckpt.metrics[-1]["val_mIoU"] == pytest.approx(mem["mIoU"], abs=1e-12)
+
+
+def test_shard_order_covers_every_sample_once_per_epoch():
+    from panoptic_bench.dsnet.distributed import DistInfo, eval_shard, shard_order
+
+    n = 7
+    shards = [shard_order(n, 3, 0, DistInfo(rank=r, world_size=2), True) for r in range(2)]
+    assert len(shards[0]) == len(shards[1]) == 4
+    assert set(shards[0]) | set(shards[1]) == set(range(n))
+    assert shard_order(n, 3, 0, DistInfo(), True) != shard_order(n, 4, 0, DistInfo(), True)
+    ev = [eval_shard(n, DistInfo(rank=r, world_size=3)) for r in range(3)]
+    assert sorted(sum(ev, [])) == list(range(n))
+
+
+def test_training_set_augmentation_is_reproducible(world: Path, cfg: DSNetConfig):
+    from panoptic_bench.dsnet.data import TrainingSet, open_dataset
+
+    ds = open_dataset(world, cfg.data, "train")
+    a = TrainingSet(ds, cfg.augment.__class__(max_points=500), seed=1)
+    b = TrainingSet(ds, cfg.augment.__class__(max_points=500), seed=1)
+    a.set_epoch(2)
+    b.set_epoch(2)
+    assert np.array_equal(a[1].xyz, b[1].xyz) and len(a[1].xyz) == 500
+    b.set_epoch(3)
+    assert not np.array_equal(a[1].xyz, b[1].xyz)
+    raw = ds.load(1)
+    assert not np.array_equal(raw.xyz, TrainingSet(ds, cfg.augment, seed=1)[1].xyz)
+    assert np.array_equal(raw.sem, TrainingSet(ds, cfg.augment, seed=1)[1].sem)
+
+
+def test_dataset_instances_unique_and_errors(world: Path, cfg: DSNetConfig, tmp_path: Path):
+    from panoptic_bench.dsnet.data import open_dataset
+    from panoptic_bench.errors import InputError
+
+    s = open_dataset(world, cfg.data, "train").load(0)
+    assert s.inst.min() == 0 and set(np.unique(s.inst[s.inst > 0])) == set(
+        range(1, s.inst.max() + 1)
+    )
+    assert (s.sem[s.inst > 0] == 1).all()  # only cars carry instances
+    with pytest.raises(InputError, match="num_classes"):
+        open_dataset(world, cfg.replace(data={"num_classes": 17}).data, "train")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="checkpoint"):
+        load_checkpoint(bad)
