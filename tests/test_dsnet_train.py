@@ -19,7 +19,7 @@ import torch
 
 from panoptic_bench.cli import main as cli
 from panoptic_bench.dsnet.checkpoint import load_checkpoint
-from panoptic_bench.dsnet.config import DSNetConfig, save_config
+from panoptic_bench.dsnet.config import DatasetFormat, DSNetConfig, save_config
 from panoptic_bench.dsnet.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -250,3 +250,33 @@ def test_dataset_instances_unique_and_errors(world: Path, cfg: DSNetConfig, tmp_
     bad.write_bytes(b"not a checkpoint")
     with pytest.raises(InputError, match="checkpoint"):
         load_checkpoint(bad)
+
+
+def test_nuscenes_root_train_infer_eval(cfg: DSNetConfig, tmp_path: Path):
+    """A nuScenes-format root (synthetic, with panoptic labels) through the same interface."""
+    from panoptic_bench.datasets.synthetic import generate_nuscenes
+    from panoptic_bench.dsnet.data import open_dataset
+
+    root = generate_nuscenes(tmp_path / "nus", scenes=10, samples=1, progress=False)
+    assert cli(["nuscenes", "make-labels", "--dataroot", str(root), "--version", "v1.0-mini",
+                "--out-dir", str(root)]) == 0  # fmt: skip
+    nus = cfg.replace(
+        data={"format": DatasetFormat.NUSCENES, "num_classes": 17, "train_split": "mini_train",
+              "val_split": "mini_val", "nuscenes_version": "v1.0-mini"},
+    )  # fmt: skip
+    ds = open_dataset(root, nus.data, "val")
+    s = ds.load(0)
+    assert ds.class_map.thing_ids == tuple(range(1, 11)) and s.sem.max() <= 16
+    assert (ds.class_map.thing_lut()[s.sem] | (s.inst == 0)).all()
+    run = tmp_path / "run"
+    paths = train(nus, root, run, stage="semantic", epochs=1, progress=False)
+    pred = tmp_path / "pred"
+    args = ["infer", "--checkpoint", str(paths["semantic"]), "--data", str(root)]
+    assert cli([*args, "--split", "mini_val", "--out", str(pred), "--no-progress"]) == 0
+    files = sorted((pred / "panoptic" / "mini_val").glob("*_panoptic.npz"))
+    assert len(files) == len(ds) == 2
+    assert cli(["eval", "nuscenes", "--dataroot", str(root), "--version", "v1.0-mini",
+                "--result-path", str(pred), "--eval-set", "mini_val",
+                "--output", str(tmp_path / "eval")]) == 0  # fmt: skip
+    scores = json.loads((tmp_path / "eval" / "scores.json").read_text())["all"]
+    assert 0.0 <= scores["mIoU"] <= 1.0
