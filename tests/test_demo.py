@@ -120,3 +120,64 @@ def test_cli_errors_are_one_line(argv, message, tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "o"), *argv]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def _random_dsnet_checkpoint(path: Path) -> Path:
+    """A DS-Net checkpoint with random weights and a tiny network (exercises the DS-Net path)."""
+    from panoptic_bench.datasets.semantickitti import LABELS
+    from panoptic_bench.dsnet.checkpoint import (
+        Checkpoint,
+        build_backbone,
+        build_shift,
+        save_checkpoint,
+    )
+    from panoptic_bench.dsnet.config import DSNetConfig, load_config
+    from panoptic_bench.dsnet.data import ClassMap
+
+    raw = load_config(REPO / "configs" / "dsnet_semantickitti.yaml").to_dict()
+    raw["grid"]["size"] = [32, 32, 8]
+    raw["model"].update(init_size=4, point_hidden=[8], point_feature_dim=8, offset_hidden=8)
+    raw["dynamic_shift"]["max_seeds"] = 200
+    cfg = DSNetConfig.from_dict(raw)
+    cmap = ClassMap(
+        "semantickitti", LABELS.class_names, LABELS.thing_ids, LABELS.stuff_ids, LABELS.ignore_ids
+    )
+    import torch
+
+    torch.manual_seed(0)
+    backbone = build_backbone(cfg, cmap.num_classes)
+    shift = build_shift(cfg, cfg.model.init_size)
+    ckpt = Checkpoint("ds", 1, cfg, cmap, backbone.state_dict(), shift.state_dict())
+    save_checkpoint(ckpt, path)
+    return path
+
+
+def test_dsnet_path_labels_network_rows(tmp_path, monkeypatch):
+    """With a (here random) shipped checkpoint: DS-Net row, clusterings on its centres, Fig. 4a."""
+    from dsnet_tiny_world import write_tiny_world
+
+    from panoptic_bench.demo import steps
+    from panoptic_bench.demo.kitti import DemoResult, KittiTarget, run_kitti_methods
+    from panoptic_bench.demo.pipeline import prepare_workspace
+    from panoptic_bench.demo.summary import Stages
+
+    ckpt = _random_dsnet_checkpoint(tmp_path / "dsnet.pt")
+    monkeypatch.setattr(steps, "find_checkpoint", lambda name: ckpt)
+    world = write_tiny_world(tmp_path / "world", {"08": 2})
+    ws = prepare_workspace(tmp_path / "report", tmp_path / "work")
+    target = KittiTarget(world, ("08",), "tiny world", "tiny", bandwidth_scans=1)
+    result = DemoResult(ws.out / "index.md", [])
+    run_kitti_methods(ws, target, Stages(), result)
+    assert result.regression == "DS-Net" and not result.missing
+    metas = {p.name: json.loads((p / "run.json").read_text()) for p in result.runs}
+    assert metas["tiny-dsnet"]["method"] == "DS-Net"
+    assert metas["tiny-dsnet"]["ablation"] == {
+        "clustering": "Dynamic Shifting",
+        "framework": "+ DS",
+    }
+    assert metas["tiny-meanshift"]["method"] == "Backbone with Fusion"
+    assert metas["tiny-meanshift-nofusion"]["ablation"] == {"framework": "Backbone"}
+    assert metas["tiny-bfs"]["method"] == "Backbone + BFS"
+    for name, meta in metas.items():
+        assert "simulated regression" not in meta["method"], name
+        assert (ws.runs / name / "scores.json").is_file()
