@@ -65,7 +65,7 @@ def test_index_links_existing_files_and_no_generated_data(tiny_demo):
     for link in links:
         assert (out / link).is_file(), link
     assert not (out / "work").exists()
-    assert not list(out.rglob("bev.npz"))
+    assert not list(out.rglob("bev.npz")) and not list(out.rglob("segmentation-result.json"))
     assert not list(out.rglob("*.bin")) and not list(out.rglob("*.label"))
 
 

@@ -28,7 +28,7 @@ from panoptic_bench.demo.evaluate import evaluate_nuscenes_run
 from panoptic_bench.demo.kitti import SIMULATED_NOTE, DemoResult, KittiTarget, run_kitti_methods
 from panoptic_bench.demo.summary import Stages, summary_table
 
-__all__ = ["DemoResult", "drop_figure_arrays", "prepare_workspace", "run_demo"]
+__all__ = ["DemoResult", "drop_unreported_files", "prepare_workspace", "run_demo"]
 
 MARKER = ".panoptic-bench-demo"
 
@@ -59,13 +59,21 @@ def prepare_workspace(out: str | Path, work: str | Path | None) -> steps.Workspa
     return ws
 
 
-def drop_figure_arrays(runs: Sequence[Path]) -> None:
-    """Remove ``bev.npz`` (per-point arrays of a scan) from run dirs once the figure is drawn.
+#: Run-directory files left out of the committed report sets: ``bev.npz`` (per-point arrays of
+#: a scan, drawn already) and the devkit-format ``segmentation-result.json``, whose PQ† sums in
+#: the devkit's hash-seed-dependent class order (``scores.json`` holds the same numbers).
+UNREPORTED_FILES = ("bev.npz", "segmentation-result.json")
 
-    The committed report sets keep only small files, and never points of the real scans.
+
+def drop_unreported_files(runs: Sequence[Path]) -> None:
+    """Remove :data:`UNREPORTED_FILES` from run directories once the report is built.
+
+    The committed report sets keep only small files that regenerate byte for byte, and never
+    points of the real scans.
     """
     for run in runs:
-        (Path(run) / "bev.npz").unlink(missing_ok=True)
+        for name in UNREPORTED_FILES:
+            (Path(run) / name).unlink(missing_ok=True)
 
 
 def _nuscenes(ws, size, workers, stages, result) -> None:
@@ -141,7 +149,7 @@ def run_demo(
         Worker processes for labels, clustering and evaluation.
     keep_work : bool
         Keep generated data in ``out/work``. False (``--report-only``): a temporary directory,
-        deleted at the end, and ``bev.npz`` removed once drawn, so only the report set remains.
+        deleted at the end, and :data:`UNREPORTED_FILES` removed, so only the report set remains.
     use_checkpoint : bool
         Use the shipped DS-Net checkpoint when there is one.
     command : str, optional
@@ -184,7 +192,7 @@ def run_demo(
         with stages("report: tables, figures, index.md"):
             build_report(result.runs, ws.out, command=command)
         if not keep_work:
-            drop_figure_arrays(result.runs)
+            drop_unreported_files(result.runs)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

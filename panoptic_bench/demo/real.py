@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from panoptic_bench.demo.kitti import DemoResult, KittiTarget, run_kitti_methods
-from panoptic_bench.demo.pipeline import drop_figure_arrays, prepare_workspace
+from panoptic_bench.demo.pipeline import drop_unreported_files, prepare_workspace
 from panoptic_bench.demo.summary import Stages, summary_table
 from panoptic_bench.errors import InputError, InputErrors
 
@@ -89,7 +89,7 @@ def run_real_scans(
         with stages("report: tables, figures, index.md"):
             build_report(result.runs, ws.out, command=command)
         if not keep_work:
-            drop_figure_arrays(result.runs)
+            drop_unreported_files(result.runs)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
