@@ -16,8 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Synthesize a SemanticKITTI-format world (train 00 + val 08) and a nuScenes-format "
             "v1.0-mini dataroot, build the Panoptic nuScenes labels, regress centres (DS-Net "
             "with the shipped checkpoint, or the labelled simulated regression when none is "
-            "shipped), cluster them with BFS, DBSCAN, HDBSCAN and mean shift, score every "
-            "method with the project's evaluators into DIR/runs/<name>, and build the report "
+            "shipped), cluster them with BFS, DBSCAN, HDBSCAN and mean shift, merge the same "
+            "semantics with a simulated detector's boxes (box-merge), score every method with the project's evaluators into DIR/runs/<name>, and build the report "
             "(DIR/index.md, tables, figures). With --real-scans ROOT, the same SemanticKITTI "
             "methods on the labelled scans under ROOT instead."
         ),
