@@ -29,6 +29,7 @@ bench: $(STAMP)
 
 report: $(STAMP)
 	$(VENV)/bin/panoptic-bench demo --out reports/synthetic --report-only
+	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti --out reports/real-scans --report-only
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache
