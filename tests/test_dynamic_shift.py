@@ -3,6 +3,7 @@ FPS, loss, and clustering of blobs of very different sizes against a fixed-bandw
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 import torch
@@ -69,23 +70,58 @@ def lidar_like(rng: np.random.Generator, n: int = 1500) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- sparse vs dense
-@pytest.mark.parametrize("levels", [1, 2, 3])
-def test_ball_sums_match_dense(levels):
-    x = lidar_like(np.random.default_rng(levels))
+BALL_CASES = {
+    "lidar_like": lambda rng: lidar_like(rng),
+    "far_apart_clusters": lambda rng: np.concatenate(  # empty cells between occupied ones
+        [lidar_like(rng, 400), lidar_like(rng, 400) + [1e4, -3e3, 50.0]]
+    ),
+    "huge_extent": lambda rng: rng.uniform(-1e7, 1e7, (300, 3)),  # keys must not overflow
+    "duplicates": lambda rng: np.repeat(rng.normal(size=(60, 3)), 5, axis=0),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BALL_CASES))
+@pytest.mark.parametrize("radii", [BWS, (3.2, 0.2, 1.7, 0.2), (0.5,)])
+def test_ball_sums_match_dense(case, radii):
+    x = BALL_CASES[case](np.random.default_rng(len(case)))
     d2 = ((x[:, None] - x[None]) ** 2).sum(-1)
-    for delta in BWS:
-        counts, sums = ball_sums(x, delta, levels=levels)
-        k = d2 <= delta**2
-        np.testing.assert_array_equal(counts, k.sum(1))
-        np.testing.assert_allclose(sums, k.astype(float) @ x, rtol=1e-10, atol=1e-9)
+    threads = numba.get_num_threads()
+    try:
+        for n in sorted({1, threads}):  # the per-thread accumulators change nothing
+            numba.set_num_threads(n)
+            counts, sums = ball_sums(x, radii)
+            assert counts.shape == (len(x), len(radii)) and sums.shape == (len(x), len(radii), 3)
+            for j, delta in enumerate(radii):
+                k = d2 <= delta**2
+                np.testing.assert_array_equal(counts[:, j], k.sum(1))
+                np.testing.assert_allclose(sums[:, j], k.astype(float) @ x, rtol=1e-10, atol=1e-9)
+    finally:
+        numba.set_num_threads(threads)
 
 
 def test_ball_sums_on_lattice_boundary_is_inclusive():
-    # Points at exactly distance δ are neighbours, as in the dense formulation.
+    # Points at exactly distance δ are neighbours, as in the dense formulation; the lattice
+    # spacing equals the grid cell, so neighbours sit exactly on cell boundaries.
     g = np.stack(np.meshgrid(*[np.arange(4.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    counts, _ = ball_sums(g, 1.0)
-    assert counts[0] == 4  # corner: itself + 3 axis neighbours
-    np.testing.assert_array_equal(counts, (((g[:, None] - g[None]) ** 2).sum(-1) <= 1).sum(1))
+    counts, _ = ball_sums(g, (1.0,))
+    assert counts[0, 0] == 4  # corner: itself + 3 axis neighbours
+    np.testing.assert_array_equal(counts[:, 0], (((g[:, None] - g[None]) ** 2).sum(-1) <= 1).sum(1))
+    counts, _ = ball_sums(g, (1.0, 1.5, 2.0))
+    # + 3 face diagonals (d² = 2); + the body diagonal (d² = 3) and 3 points at exactly d² = 4
+    np.testing.assert_array_equal(counts[0], [4, 7, 11])
+
+
+def test_ball_sums_rejects_bad_input():
+    for points, radii in [
+        (np.zeros((3, 2)), BWS),
+        (np.array([[0.0, np.nan, 0.0]]), BWS),
+        (np.zeros((3, 3)), (0.0, 1.0)),
+        (np.zeros((3, 3)), ()),
+    ]:
+        with pytest.raises(ValueError):
+            ball_sums(points, radii)
+    counts, sums = ball_sums(np.zeros((0, 3)), BWS)
+    assert counts.shape == (0, 3) and sums.shape == (0, 3, 3)
 
 
 @pytest.mark.parametrize("kernel", [ShiftKernel.FLAT, ShiftKernel.GAUSSIAN])
@@ -118,6 +154,13 @@ def test_gaussian_cutoff_is_a_small_truncation():
     cut = gaussian_kernel_means(x, bw, cutoff=3.0)
     torch.testing.assert_close(cut, dense_gaussian_means(x, bw, cutoff=3.0), rtol=0, atol=1e-10)
     assert 0 < (cut - full).norm(dim=1).max() < 0.3
+
+
+def test_gaussian_bandwidth_gradient_matches_finite_differences():
+    x = torch.from_numpy(lidar_like(np.random.default_rng(5), 200))
+    bw = torch.rand(len(x), dtype=torch.double, generator=torch.Generator().manual_seed(0)) + 0.3
+    bw.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda b: gaussian_kernel_means(x, b, cutoff=3.0), (bw,))
 
 
 # ---------------------------------------------------------------- gradient formula

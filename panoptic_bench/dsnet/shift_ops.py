@@ -2,174 +2,188 @@
 
 The flat kernel of bandwidth δ maps a seed x_i to the mean of the seeds within distance δ of it
 (itself included): ``mean_δ(X)[i] = Σ_{j: ‖x_i − x_j‖² ≤ δ²} x_j / #{j: ‖x_i − x_j‖² ≤ δ²}``.
-Near-converged seeds are dense (thousands of seeds inside a 3.2 m ball), so enumerating every
-neighbour pair costs millions of pairs per iteration. :func:`ball_sums` is exact but cheaper:
-the seeds are hashed to a grid of cells (cell size a fraction of δ) and each cell keeps its
-count, coordinate sum and tight bounding box. A pair of cells whose bounding boxes are entirely
-within δ of each other contributes the aggregate of one to every seed of the other (one
-addition instead of n_a × n_b); only boxes straddling the ball surface descend to seed × cell
-tests and, if still straddling, to seed × seed tests. Box distances bound the float64 point
-distances monotonically, so the neighbour sets are exactly those of the dense formulation;
-only the summation order differs.
 
-The Gaussian kernel of the direct-regression ablation (appendix eq. 19) uses explicit radius
-pairs cut off at ``cutoff × δ_i`` (see :func:`gaussian_kernel_means`).
+All bandwidths are served by one pass of a numba kernel (:func:`ball_sums`): the seeds are hashed
+to a uniform grid whose cell edge is the largest radius (sorted by cell key, so every cell and
+every run of z-adjacent cells is a contiguous slice), and every seed scans the forward half of the
+3 x 3 columns of z-adjacent cells around its own, computing each pair's squared distance once as
+``(x_i − x_j)² + (y_i − y_j)² + (z_i − z_j)²`` in float64, exactly as the dense formulation does
+(the value is symmetric in i and j). The pair is added to both seeds, in the ring of the smallest
+radius that contains it; cumulative ring sums give the counts and coordinate sums of every ball.
+No pair list is materialised, the neighbour sets are exactly those of ``d² ≤ δ²`` (inclusive,
+self included) and only the summation order of the coordinate sums differs from a matrix product.
+
+The Gaussian kernel of the direct-regression ablation (appendix eq. 19) uses the same grid with
+the cell edge ``cutoff × max δ_i`` (see :func:`gaussian_kernel_means`); its gradient with respect
+to the per-seed bandwidth comes from sums gathered in the same pass.
+
+Threads: numba's default (``NUMBA_NUM_THREADS``, one per core) on the ``workqueue`` threading
+layer unless ``NUMBA_THREADING_LAYER`` says otherwise (numba's OpenMP pool spins between
+parallel regions and fights torch's for the cores; measured 15-20 % slower on 2 shared cores).
+The workqueue layer must not be entered from two Python threads at once. The kernels are
+compiled on first use and cached on disk (``cache=True``), so the compile cost is paid once per
+machine.
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
+
+import numba
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
+from torch.autograd.function import once_differentiable
 
-#: Grid cell size of :func:`ball_sums` as a fraction of the radius (measured best on
-#: LiDAR-like seeds: smaller cells mean more cell pairs, larger ones more boundary seeds).
-CELL_FRACTION = 1.0
-#: Nested grid levels of :func:`ball_sums` above the seeds.
-LEVELS = 4
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "workqueue"
 
-
-def ragged_arange(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """Concatenate ``arange(s, s + n)`` for every (s, n); int64 array of shape (sum(lengths),)."""
-    lengths = np.asarray(lengths, dtype=np.int64)
-    total = int(lengths.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    offsets = np.cumsum(lengths) - lengths
-    return np.arange(total, dtype=np.int64) + np.repeat(
-        np.asarray(starts, dtype=np.int64) - offsets, lengths
-    )
+#: Cell edge as a multiple of the largest radius: the margin keeps every pair with
+#: ``d² ≤ δ²`` in adjacent cells despite the rounding of ``(x − min) / cell``.
+CELL_MARGIN = 1.0 + 1e-6
+#: Seeds per work item of the parallel loops (dynamic scheduling balances dense cells).
+CHUNK = 64
 
 
-def _add_rows(index: np.ndarray, values: list[np.ndarray], size: int) -> list[np.ndarray]:
-    """``out[d][index[k]] += values[d][k]`` for every column d; list of float64 (size,)."""
-    return [np.bincount(index, weights=v, minlength=size) for v in values]
+def _compress(q: np.ndarray) -> np.ndarray:
+    """Renumber occupied integer cell coordinates keeping adjacency: gaps > 1 become 2.
 
-
-def _box_dist2(lo_a, hi_a, lo_b, hi_b) -> tuple[np.ndarray, np.ndarray]:
-    """Squared min and max distance between axis-aligned boxes given as per-axis columns.
-
-    Points are zero-size boxes (``lo is hi``). Rounded subtraction, squaring and the x, y, z
-    summation order are monotone, so for any points inside the boxes
-    ``min ≤ Σ_d (p_d − q_d)² ≤ max`` holds in floating point exactly as in the dense test.
+    Neighbouring cells stay neighbours and distant ones stay apart, while the coordinate range
+    is bounded by ``2 M`` whatever the extent of the seeds (so keys never overflow int64).
     """
-    gap2 = np.zeros(len(lo_a[0]))
-    span2 = np.zeros(len(lo_a[0]))
-    for la, ha, lb, hb in zip(lo_a, hi_a, lo_b, hi_b):
-        g = np.maximum(np.maximum(lb - ha, la - hb), 0.0)
-        gap2 += g * g
-        t = np.maximum(hb - la, ha - lb)
-        span2 += t * t
-    return gap2, span2
+    u, inverse = np.unique(q, return_inverse=True)
+    new = np.concatenate([[0], np.cumsum(np.minimum(np.diff(u), 2))])
+    return new[inverse].reshape(q.shape)
 
 
-def _take(cols: list[np.ndarray], index: np.ndarray) -> list[np.ndarray]:
-    return [c[index] for c in cols]
+@numba.njit(cache=True)
+def _column_ranges(keys, cell_ijk, dims):  # pragma: no cover - compiled
+    """Per occupied cell (i, j, k), the [start, end) slices of the sorted seeds in the 9 columns
+    (i + a, j + b, k − 1 … k + 1), a, b ∈ {−1, 0, 1}, at index ``3 (a + 1) + (b + 1)``: the own
+    column is 4 and the columns after it (5 … 8) are the forward half used by symmetric scans."""
+    n_cells = cell_ijk.shape[0]
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    ranges = np.zeros((n_cells, 9, 2), dtype=np.int64)
+    for c in range(n_cells):
+        i, j, k = cell_ijk[c, 0], cell_ijk[c, 1], cell_ijk[c, 2]
+        k0, k1 = max(k - 1, 0), min(k + 1, nz - 1)
+        for a in range(-1, 2):
+            for b in range(-1, 2):
+                if 0 <= i + a < nx and 0 <= j + b < ny:
+                    base = ((i + a) * ny + j + b) * nz
+                    q = 3 * (a + 1) + b + 1
+                    ranges[c, q, 0] = np.searchsorted(keys, base + k0, side="left")
+                    ranges[c, q, 1] = np.searchsorted(keys, base + k1, side="right")
+    return ranges
 
 
-def _grid_levels(xs: list[np.ndarray], cell: float, levels: int):
-    """Nested grids over seed columns ``xs``: level k has cell size ``cell / 2**k``.
+def _grid(x: np.ndarray, cell: float):
+    """Sort the seeds into a uniform grid of edge ``cell``.
 
-    Returns the permutation sorting the seeds so that every cell of every level is a contiguous
-    run, and per level (coarse to fine): ``(starts, agg, lo, hi)`` with ``agg = [count, Σx,
-    Σy, Σz]`` and per-axis tight bounds; a last level holds the single seeds.
+    Returns
+    -------
+    order : (M,) int64, the permutation sorting the seeds by cell key
+    xs : (M, 3) float64, the sorted seeds (C-contiguous)
+    seed_cell : (M,) int64, cell number of every sorted seed
+    ranges : (n_cells, 9, 2) int64, slices of the sorted seeds to scan for each cell
     """
-    m = len(xs[0])
-    fine = cell / 2 ** (levels - 1)
-    q = [np.floor((c - c.min()) / fine).astype(np.int64) for c in xs]
-    codes = []
-    for k in range(levels):
-        qk = [c >> (levels - 1 - k) for c in q]
-        dims = [int(c.max()) + 1 for c in qk]
-        codes.append((qk[0] * dims[1] + qk[1]) * dims[2] + qk[2])
-    order = np.lexsort(codes[::-1])
-    xs = _take(xs, order)
-    out = []
-    for code in codes:
-        cs = code[order]
-        starts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
-        agg = [np.diff(np.r_[starts, m]).astype(np.float64)]
-        agg += [np.add.reduceat(c, starts) for c in xs]
-        lo = [np.minimum.reduceat(c, starts) for c in xs]
-        hi = [np.maximum.reduceat(c, starts) for c in xs]
-        out.append((starts, agg, lo, hi))
-    out.append((np.arange(m), [np.ones(m), *xs], xs, xs))
-    return order, xs, out
+    q = np.floor((x - x.min(axis=0)) / cell).astype(np.int64)
+    q = np.stack([_compress(c) for c in q.T], axis=1)
+    dims = q.max(axis=0) + 1
+    keys = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    seed_cell = np.cumsum(np.r_[True, keys[1:] != keys[:-1]]) - 1
+    ranges = _column_ranges(keys, np.ascontiguousarray(q[order][first]), dims.astype(np.int64))
+    return order, np.ascontiguousarray(x[order]), seed_cell, ranges
 
 
-def ball_sums(
-    points: np.ndarray,
-    radius: float,
-    *,
-    cell_fraction: float | None = None,
-    levels: int | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Count and coordinate sum of the points within ``radius`` of every point (self included).
+@numba.njit(parallel=True, cache=True)
+def _ball_kernel(xs, seed_cell, ranges, r2, acc):  # pragma: no cover - compiled
+    """Ring sums ``acc[thread, seed, ring] += [1, x, y, z]`` over ascending squared radii ``r2``.
+
+    Symmetric half scan: seed i visits the seeds after it in its own column and the forward
+    columns, so every unordered pair's distance is computed once and added to both seeds (each
+    thread into its own slice of ``acc``, summed by the caller).
+    """
+    m, n_r = xs.shape[0], r2.shape[0]
+    outer = r2[n_r - 1]
+    for i in numba.prange(m):
+        t = numba.get_thread_id()
+        own = np.zeros((n_r, 4))
+        xi, yi, zi = xs[i, 0], xs[i, 1], xs[i, 2]
+        own[0, 0], own[0, 1], own[0, 2], own[0, 3] = 1.0, xi, yi, zi  # self, d² = 0
+        c = seed_cell[i]
+        for q in range(4, 9):
+            start = i + 1 if q == 4 else ranges[c, q, 0]
+            for j in range(start, ranges[c, q, 1]):
+                xj, yj, zj = xs[j, 0], xs[j, 1], xs[j, 2]
+                dx = xi - xj
+                dy = yi - yj
+                dz = zi - zj
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 <= outer:
+                    r = 0  # smallest ring containing the pair, without branches
+                    for k in range(n_r - 1):
+                        r += d2 > r2[k]
+                    own[r, 0] += 1.0
+                    own[r, 1] += xj
+                    own[r, 2] += yj
+                    own[r, 3] += zj
+                    acc[t, j, r, 0] += 1.0
+                    acc[t, j, r, 1] += xi
+                    acc[t, j, r, 2] += yi
+                    acc[t, j, r, 3] += zi
+        for r in range(n_r):
+            for d in range(4):
+                acc[t, i, r, d] += own[r, d]
+
+
+def _as_points(points) -> np.ndarray:
+    x = np.ascontiguousarray(points, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"need points of shape (M, 3), got {x.shape}")
+    if not np.isfinite(x).all():
+        raise ValueError("points contain NaN or infinite coordinates")
+    return x
+
+
+def ball_sums(points: np.ndarray, radii: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Count and coordinate sum of the points within each radius of every point (self included).
 
     Parameters
     ----------
     points : np.ndarray of shape (M, 3), float
         Seed positions (converted to float64).
-    radius : float
-        Ball radius δ > 0; point j is a neighbour of i iff ``Σ_d (x_id − x_jd)² ≤ δ²``.
-    cell_fraction, levels : float, int, optional
-        Coarsest cell size as a fraction of δ and the number of nested grid levels (each
-        halves the cell size); defaults :data:`CELL_FRACTION`, :data:`LEVELS`.
+    radii : sequence of float, length l
+        Ball radii δ_j > 0 in any order; point k is a neighbour of i for radius δ_j iff
+        ``Σ_d (x_id − x_kd)² ≤ δ_j ** 2`` (float64, as the dense formulation).
 
     Returns
     -------
-    counts : np.ndarray of shape (M,), float64
+    counts : np.ndarray of shape (M, l), int64
         Number of neighbours (≥ 1: the point itself).
-    sums : np.ndarray of shape (M, 3), float64
+    sums : np.ndarray of shape (M, l, 3), float64
         Sum of the neighbours' coordinates.
     """
-    x = np.asarray(points, dtype=np.float64)
-    m = len(x)
+    x = _as_points(points)
+    radii = np.asarray(radii, dtype=np.float64).reshape(-1)
+    if len(radii) == 0 or radii.min() <= 0:
+        raise ValueError(f"radii must be positive, got {radii.tolist()}")
+    m, n_r = len(x), len(radii)
     if m == 0:
-        return np.zeros(0), np.zeros((0, 3))
-    r2 = float(radius) ** 2
-    cell = float(radius) * (CELL_FRACTION if cell_fraction is None else cell_fraction)
-    order, xs, nodes = _grid_levels([np.ascontiguousarray(c) for c in x.T], cell, levels or LEVELS)
-
-    # Level 0: coarse cell x coarse cell; a box pair entirely inside the ball is summed once.
-    starts, agg, lo, hi = nodes[0]
-    n_cells = len(starts)
-    centre = np.stack([0.5 * (a + b) for a, b in zip(lo, hi)], axis=1)
-    half_diag = 0.5 * np.sqrt(sum((b - a) ** 2 for a, b in zip(lo, hi)))
-    pairs = cKDTree(centre).query_pairs(
-        float(radius) + 2.0 * float(half_diag.max()) + 1e-9, output_type="ndarray"
-    )
-    own = np.arange(n_cells, dtype=np.int64)
-    na = np.concatenate([pairs[:, 0], pairs[:, 1], own])
-    nb = np.concatenate([pairs[:, 1], pairs[:, 0], own])
-    gap2, span2 = _box_dist2(_take(lo, na), _take(hi, na), _take(lo, nb), _take(hi, nb))
-    full = span2 <= r2
-    cell_of = np.repeat(own, np.diff(np.r_[starts, m]))
-    acc = [c[cell_of] for c in _add_rows(na[full], _take(agg, nb[full]), n_cells)]
-    part = ~full & (gap2 <= r2)
-    na, nb = na[part], nb[part]
-
-    # Straddling cell pairs: expand the query side to its seeds, then descend the other side's
-    # nested cells (seed x cell) down to single seeds.
-    counts = np.diff(np.r_[starts, m])
-    seeds = ragged_arange(starts[na], counts[na])
-    nb = np.repeat(nb, counts[na])
-    for k in range(1, len(nodes)):
-        first = np.searchsorted(nodes[k][0], np.r_[nodes[k - 1][0], m])
-        n_child = np.diff(first)[nb]
-        seeds = np.repeat(seeds, n_child)
-        nb = ragged_arange(first[nb], n_child)
-        _, agg, lo, hi = nodes[k]
-        xq = _take(xs, seeds)
-        gap2, span2 = _box_dist2(xq, xq, _take(lo, nb), _take(hi, nb))
-        full = span2 <= r2
-        for a, b in zip(acc, _add_rows(seeds[full], _take(agg, nb[full]), m)):
-            a += b
-        part = ~full & (gap2 <= r2)
-        seeds, nb = seeds[part], nb[part]
-    out = np.empty((m, 4))
-    out[order] = np.stack(acc, axis=1)
-    return out[:, 0], out[:, 1:]
+        return np.zeros((0, n_r), np.int64), np.zeros((0, n_r, 3))
+    rank = np.argsort(radii, kind="stable")
+    r2 = np.array([float(r) ** 2 for r in radii[rank]])
+    order, xs, seed_cell, ranges = _grid(x, float(radii.max()) * CELL_MARGIN)
+    acc = np.zeros((numba.get_num_threads(), m, n_r, 4))
+    with numba.parallel_chunksize(CHUNK):
+        _ball_kernel(xs, seed_cell, ranges, r2, acc)
+    balls = np.cumsum(acc.sum(axis=0), axis=1)  # rings -> balls
+    out = np.empty_like(balls)
+    out[order[:, None], rank[None, :]] = balls
+    return out[:, :, 0].astype(np.int64), out[:, :, 1:]
 
 
 def flat_kernel_means(points: np.ndarray, bandwidths: tuple[float, ...]) -> np.ndarray:
@@ -187,30 +201,91 @@ def flat_kernel_means(points: np.ndarray, bandwidths: tuple[float, ...]) -> np.n
     np.ndarray of shape (M, l, 3), float64
         Mean of the seeds within δ_j of each seed (self included, so never empty).
     """
-    x = np.asarray(points, dtype=np.float64)
-    out = np.empty((len(x), len(bandwidths), 3))
-    for j, delta in enumerate(bandwidths):
-        counts, sums = ball_sums(x, delta)
-        out[:, j] = sums / np.maximum(counts, 1.0)[:, None]
-    return out
+    counts, sums = ball_sums(points, bandwidths)
+    return sums / np.maximum(counts, 1)[:, :, None]
 
 
-def radius_pairs(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Directed neighbour pairs within ``radius`` (both directions and every self pair).
+@numba.njit(parallel=True, cache=True)
+def _gaussian_kernel(xs, seed_cell, ranges, bw, cut2, out):  # pragma: no cover - compiled
+    """Per seed: [Σk, Σk·Δx (3), Σk·d², Σk·d²·Δx (3)] with Δx = x_j − x_i, k = exp(−d²/2δ_i²)."""
+    m = xs.shape[0]
+    for i in numba.prange(m):
+        xi, yi, zi = xs[i, 0], xs[i, 1], xs[i, 2]
+        scale = -0.5 / (bw[i] * bw[i])
+        c, lim = seed_cell[i], cut2[i]
+        for q in range(9):
+            for j in range(ranges[c, q, 0], ranges[c, q, 1]):
+                dx = xs[j, 0] - xi
+                dy = xs[j, 1] - yi
+                dz = xs[j, 2] - zi
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 <= lim:
+                    k = np.exp(d2 * scale)
+                    kd = k * d2
+                    out[i, 0] += k
+                    out[i, 1] += k * dx
+                    out[i, 2] += k * dy
+                    out[i, 3] += k * dz
+                    out[i, 4] += kd
+                    out[i, 5] += kd * dx
+                    out[i, 6] += kd * dy
+                    out[i, 7] += kd * dz
+
+
+def gaussian_sums(points: np.ndarray, bandwidth: np.ndarray, cutoff: float) -> np.ndarray:
+    """Truncated Gaussian-kernel sums of every seed, relative to the seed itself.
+
+    Parameters
+    ----------
+    points : np.ndarray of shape (M, 3), float
+    bandwidth : np.ndarray of shape (M,), float, > 0
+        Per-seed bandwidth δ_i; neighbours are the seeds with ``d² ≤ (cutoff · δ_i) ** 2``.
+    cutoff : float
 
     Returns
     -------
-    rows, cols : np.ndarray of shape (K,), int64
-        ``‖points[rows] − points[cols]‖ ≤ radius``; rows are the query seeds.
+    np.ndarray of shape (M, 8), float64
+        ``[Σ k, Σ k Δx (3), Σ k d², Σ k d² Δx (3)]`` with ``Δx = x_j − x_i`` and
+        ``k = exp(−d² / (2 δ_i²))`` (self included: ``Σ k ≥ 1``).
     """
-    x = np.asarray(points, dtype=np.float64)
-    own = np.arange(len(x), dtype=np.int64)
-    if len(x) < 2:
-        return own, own.copy()
-    pairs = cKDTree(x).query_pairs(float(radius), output_type="ndarray").astype(np.int64)
-    rows = np.concatenate([pairs[:, 0], pairs[:, 1], own])
-    cols = np.concatenate([pairs[:, 1], pairs[:, 0], own])
-    return rows, cols
+    x = _as_points(points)
+    bw = np.ascontiguousarray(bandwidth, dtype=np.float64).reshape(-1)
+    if len(bw) != len(x) or (len(bw) and not bw.min() > 0):
+        raise ValueError("need one positive bandwidth per point")
+    if not cutoff > 0:
+        raise ValueError(f"cutoff must be positive, got {cutoff}")
+    out = np.zeros((len(x), 8))
+    if len(x) == 0:
+        return out
+    cut2 = (float(cutoff) * bw) ** 2
+    order, xs, seed_cell, ranges = _grid(x, float(cutoff) * float(bw.max()) * CELL_MARGIN)
+    sorted_out = np.zeros_like(out)
+    with numba.parallel_chunksize(CHUNK):
+        _gaussian_kernel(xs, seed_cell, ranges, bw[order], cut2[order], sorted_out)
+    out[order] = sorted_out
+    return out
+
+
+class _GaussianShift(torch.autograd.Function):
+    """``target_i = x_i + Σ k Δx / Σ k``; ``∂target_i/∂δ_i = (Σ k d² Δx − t_i Σ k d²) / (δ_i³ Σ k)``
+    with ``t_i = target_i − x_i`` (from ``∂k/∂δ = k d² / δ³``); positions are constants."""
+
+    @staticmethod
+    def forward(ctx, bandwidth: torch.Tensor, points: np.ndarray, cutoff: float) -> torch.Tensor:
+        bw = bandwidth.detach().cpu().double().numpy()
+        s = torch.from_numpy(gaussian_sums(points, bw, cutoff))
+        shift = s[:, 1:4] / s[:, :1]
+        ctx.save_for_backward(torch.from_numpy(bw), s[:, :1], shift, s[:, 4:5], s[:, 5:8])
+        target = torch.from_numpy(np.asarray(points, dtype=np.float64)) + shift
+        return target.to(device=bandwidth.device, dtype=bandwidth.dtype)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: torch.Tensor):
+        bw, k_sum, shift, kd_sum, kd_shift = ctx.saved_tensors
+        dt = (kd_shift - shift * kd_sum) / (bw[:, None] ** 3 * k_sum)
+        g = (grad.detach().cpu().double() * dt).sum(dim=1)
+        return g.to(device=grad.device, dtype=grad.dtype), None, None
 
 
 def gaussian_kernel_means(
@@ -237,17 +312,5 @@ def gaussian_kernel_means(
     x = positions.detach()
     if len(x) == 0:  # keep the graph: the loss of an empty scan must still backpropagate
         return x.to(bandwidth.dtype) + 0.0 * bandwidth[:, None]
-    xn = x.cpu().double().numpy()
-    delta_max = float(bandwidth.detach().max())
-    rows, cols = radius_pairs(xn, cutoff * delta_max)
-    d2 = ((xn[rows] - xn[cols]) ** 2).sum(axis=1)
-    keep = d2 <= (cutoff * bandwidth.detach().cpu().double().numpy()[rows]) ** 2
-    rows_t = torch.from_numpy(rows[keep]).to(x.device)
-    cols_t = torch.from_numpy(cols[keep]).to(x.device)
-    d2_t = torch.from_numpy(d2[keep]).to(device=x.device, dtype=bandwidth.dtype)
-    k = torch.exp(-d2_t / (2.0 * bandwidth[rows_t] ** 2))
-    den = torch.zeros(len(x), dtype=k.dtype, device=x.device).index_add_(0, rows_t, k)
-    num = torch.zeros(len(x), 3, dtype=k.dtype, device=x.device).index_add_(
-        0, rows_t, k[:, None] * x[cols_t].to(k.dtype)
-    )
-    return (num / den[:, None]).to(positions.dtype)
+    target = _GaussianShift.apply(bandwidth, x.cpu().double().numpy(), float(cutoff))
+    return target.to(device=x.device, dtype=positions.dtype)
