@@ -121,14 +121,20 @@ class BFS(_Estimator):
 
 
 class DBSCAN(_Estimator):
-    """DBSCAN (:class:`sklearn.cluster.DBSCAN`) with noise resolved by ``noise``.
+    """DBSCAN with noise resolved by ``noise``; before that, labels equal to sklearn's.
+
+    :func:`~panoptic_bench.baselines.dbscan.dbscan_labels` computes exactly the ``labels_`` of
+    ``sklearn.cluster.DBSCAN(eps=eps, min_samples=min_samples)`` (same core points, clusters
+    numbered by lowest core point, a border point next to several clusters in the lowest-numbered
+    one) on a grid with numba kernels, without listing neighbourhoods: dense regressed centres
+    cost milliseconds instead of seconds.
 
     Parameters
     ----------
     eps : float
-        Neighbourhood radius.
+        Neighbourhood radius (> 0, inclusive).
     min_samples : int
-        Points (self included) within ``eps`` needed for a core point.
+        Points (self included) within ``eps`` needed for a core point (>= 1).
     noise : Noise
         Fate of the points DBSCAN labels ``-1`` (default: one singleton cluster each).
 
@@ -137,6 +143,8 @@ class DBSCAN(_Estimator):
     labels_ : ndarray of shape (n_samples,), int64
         sklearn's clusters ``0..K-1`` first, then the resolved noise points.
     noise_mask_ : ndarray of shape (n_samples,), bool
+    core_sample_indices_ : ndarray of shape (n_core_samples,), int64
+        Indices of the core points (as in sklearn).
     """
 
     _params = ("eps", "min_samples", "noise")
@@ -148,13 +156,11 @@ class DBSCAN(_Estimator):
 
     def fit(self, X: np.ndarray, y: None = None) -> DBSCAN:
         """Cluster ``X`` (array of shape (n_samples, n_features)); returns self."""
-        from sklearn.cluster import DBSCAN as _SkDBSCAN
+        from panoptic_bench.baselines.dbscan import dbscan_labels  # numba: imported when used
 
         X = _check_points(X)
-        if len(X) == 0:
-            raw = np.zeros(0, dtype=np.int64)
-        else:
-            raw = _SkDBSCAN(eps=self.eps, min_samples=self.min_samples).fit(X).labels_
+        raw, core = dbscan_labels(X, self.eps, self.min_samples)
+        self.core_sample_indices_ = np.flatnonzero(core)
         self.noise_mask_ = raw < 0
         self.labels_ = resolve_noise(X, raw, Noise(self.noise))
         return self
