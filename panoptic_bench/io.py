@@ -75,6 +75,24 @@ def write_npz(path: str | Path, compressed: bool = True, **arrays: np.ndarray) -
         (np.savez_compressed if compressed else np.savez)(fh, **arrays)
 
 
+def check_output_location(output: str | Path, inputs: tuple | list = ()) -> None:
+    """Raise :class:`InputError` if ``output`` is, or lies inside, one of ``inputs``.
+
+    Creates nothing: call it before a long computation, then :func:`ensure_output_dir` when
+    the results are ready.
+    """
+    out = Path(output).resolve()
+    for src in inputs:
+        src = Path(src).resolve()
+        if out == src or src in out.parents:
+            raise InputError(
+                f"output directory lies inside the input tree {src}; choose another --output",
+                output,
+            )
+    if out.exists() and not out.is_dir():
+        raise InputError("output exists and is not a directory", output)
+
+
 def ensure_output_dir(path: str | Path, *, overwrite: bool = True, inputs: tuple = ()) -> Path:
     """Create the output directory ``path`` and refuse unsafe destinations.
 
@@ -87,16 +105,8 @@ def ensure_output_dir(path: str | Path, *, overwrite: bool = True, inputs: tuple
     inputs : tuple of paths
         Input trees that must never be written into: ``path`` may not lie inside any.
     """
+    check_output_location(path, inputs)
     out = Path(path).resolve()
-    for src in inputs:
-        src = Path(src).resolve()
-        if out == src or src in out.parents:
-            raise InputError(
-                f"output directory lies inside the input tree {src}; choose another --output",
-                path,
-            )
-    if out.exists() and not out.is_dir():
-        raise InputError("output exists and is not a directory", path)
     if out.exists() and not overwrite and any(out.iterdir()):
         raise InputError("output directory is not empty; pass --overwrite to replace it", path)
     try:

@@ -87,12 +87,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_eval(args: argparse.Namespace) -> int:
     """Handler of ``eval semantickitti``."""
-    from panoptic_bench.datasets.semantickitti import LABELS
-    from panoptic_bench.evaluation.output import (
-        check_output_location,
-        percent_table,
-        write_scores,
-    )
+    from panoptic_bench.evaluation.output import check_output_location, percent_table
     from panoptic_bench.evaluation.semantickitti import evaluate_semantickitti
     from panoptic_bench.io import ensure_output_dir
 
@@ -107,24 +102,10 @@ def run_eval(args: argparse.Namespace) -> int:
         workers=args.workers,
         by_range=args.by_range,
     )
-    out = ensure_output_dir(args.output, inputs=inputs)
-    scores = write_scores(
-        out,
-        ev.result(),
-        class_names=LABELS.class_names,
-        things=LABELS.thing_ids,
-        stuff=LABELS.stuff_ids,
-        by_range=ev.by_range,
-        extra={
-            "dataset": "semantickitti",
-            "sequences": list(ev.sequences),
-            "n_scans": ev.n_scans,
-            "min_inst_points": args.min_inst_points,
-        },
-    )
+    scores = ev.write(ensure_output_dir(args.output, inputs=inputs))
     print(f"{ev.n_scans} scans of sequences {', '.join(ev.sequences)} (values in %):")
     print(percent_table(scores))
-    print(f"results written to {out}")
+    print(f"results written to {args.output}")
     return 0
 
 

@@ -71,9 +71,7 @@ def evaluate_semantickitti_run(
     dict
         The ``scores.json`` content.
     """
-    from panoptic_bench.datasets.semantickitti import LABELS
-    from panoptic_bench.evaluation.output import write_scores
-    from panoptic_bench.evaluation.semantickitti import OFFICIAL_MIN_POINTS, evaluate_semantickitti
+    from panoptic_bench.evaluation.semantickitti import evaluate_semantickitti
 
     ev = evaluate_semantickitti(
         dataset,
@@ -84,20 +82,7 @@ def evaluate_semantickitti_run(
         by_range=KITTI_RANGE_EDGES,
     )
     out = ensure_output_dir(run_dir, inputs=(dataset, predictions))
-    scores = write_scores(
-        out,
-        ev.result(),
-        class_names=LABELS.class_names,
-        things=LABELS.thing_ids,
-        stuff=LABELS.stuff_ids,
-        by_range=ev.by_range,
-        extra={
-            "dataset": "semantickitti",
-            "sequences": list(ev.sequences),
-            "n_scans": ev.n_scans,
-            "min_inst_points": OFFICIAL_MIN_POINTS,
-        },
-    )
+    scores = ev.write(out)
     command = (
         f"panoptic-bench eval semantickitti --dataset {show(dataset)} "
         f"--predictions {show(predictions)} --sequences {','.join(sequences)} "

@@ -22,8 +22,7 @@ from typing import Any
 
 import yaml
 
-from panoptic_bench.errors import InputError
-from panoptic_bench.io import write_json, write_text
+from panoptic_bench.io import check_output_location, write_json, write_text
 from panoptic_bench.metrics.by_range import RangeStats
 from panoptic_bench.metrics.panoptic import PanopticResult
 
@@ -50,24 +49,6 @@ CODALAB_KEYS: dict[str, str] = {
     "rq_things": "RQ_th",
     "sq_things": "SQ_th",
 }
-
-
-def check_output_location(output: str | Path, inputs: Sequence[str | Path]) -> None:
-    """Raise :class:`InputError` if ``output`` is, or lies inside, one of ``inputs``.
-
-    Creates nothing: call it before a long computation, then
-    :func:`panoptic_bench.io.ensure_output_dir` when the results are ready.
-    """
-    out = Path(output).resolve()
-    for src in inputs:
-        src = Path(src).resolve()
-        if out == src or src in out.parents:
-            raise InputError(
-                f"output directory lies inside the input tree {src}; choose another --output",
-                output,
-            )
-    if out.exists() and not out.is_dir():
-        raise InputError("output exists and is not a directory", output)
 
 
 def _classes(result: PanopticResult, class_names, things, stuff) -> dict[str, dict[str, float]]:

@@ -168,10 +168,33 @@ class SemanticKittiEvaluation:
     by_range: RangeStats | None
     n_scans: int
     sequences: tuple[str, ...]
+    min_points: int = OFFICIAL_MIN_POINTS
 
     def result(self) -> PanopticResult:
         """Per-class and mean metrics."""
         return self.stats.compute()
+
+    def write(self, out_dir: str | Path) -> dict:
+        """Write ``scores.txt``, ``scores.json`` and ``per_class.csv`` into ``out_dir``.
+
+        Returns the ``scores.json`` content.
+        """
+        from panoptic_bench.evaluation.output import write_scores
+
+        return write_scores(
+            out_dir,
+            self.result(),
+            class_names=sk.LABELS.class_names,
+            things=sk.LABELS.thing_ids,
+            stuff=sk.LABELS.stuff_ids,
+            by_range=self.by_range,
+            extra={
+                "dataset": "semantickitti",
+                "sequences": list(self.sequences),
+                "n_scans": self.n_scans,
+                "min_inst_points": self.min_points,
+            },
+        )
 
 
 def evaluate_semantickitti(
@@ -255,7 +278,7 @@ def evaluate_semantickitti(
         if pool is not None:
             pool.shutdown(cancel_futures=True)
     seqs = tuple(sorted({r.sequence for r in refs}))
-    return SemanticKittiEvaluation(stats, ranges, len(jobs), seqs)
+    return SemanticKittiEvaluation(stats, ranges, len(jobs), seqs, min_points)
 
 
 def _disable(progress: bool | None) -> bool | None:
