@@ -100,6 +100,46 @@ def test_points_in_boxes_matches_devkit_on_random_boxes():
     assert len(pi) > 500
 
 
+def test_points_in_boxes_non_finite_points_and_boxes_off_the_sweep():
+    """NaN/inf points are in no box; boxes reaching past the points' extent still see them."""
+    from nuscenes.utils.data_classes import Box
+    from nuscenes.utils.geometry_utils import points_in_box
+    from pyquaternion import Quaternion
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-3, 3, (3000, 3))  # float64 input as well
+    pts[::97] = np.nan
+    pts[5::101, 1] = np.inf
+    pts[7] = [1e9, 0, 0]  # one far point: coarse grid, larger tolerance
+    n = 12
+    frames = BoxFrames(
+        translation=np.c_[rng.uniform(-4, 4, (n, 2)), np.zeros(n)],
+        size=rng.uniform(1, 4, (n, 3)),
+        rotation=np.array([Quaternion(axis=[0, 0, 1], angle=a).elements for a in range(n)]),
+        ego_translation=np.zeros(3),
+        ego_rotation=np.array([1.0, 0, 0, 0]),
+        calib_translation=np.zeros(3),
+        calib_rotation=np.array([1.0, 0, 0, 0]),
+    )
+    bi, pi = points_in_boxes(pts, frames)
+    with np.errstate(invalid="ignore"):
+        for b in range(n):
+            box = Box(frames.translation[b], frames.size[b], Quaternion(frames.rotation[b]))
+            assert np.array_equal(pi[bi == b], np.flatnonzero(points_in_box(box, pts.T)))
+    assert np.all(np.isfinite(pts[pi])) and len(pi) > 100
+    assert np.all(np.diff(bi) >= 0)
+
+
+def test_reuses_a_loaded_devkit_object(mini, devkit_labels, tmp_path):
+    from nuscenes import NuScenes
+
+    from panoptic_bench.datasets.nuscenes_panoptic import make_panoptic_labels
+
+    nusc = NuScenes(VERSION, str(mini), verbose=False)
+    make_panoptic_labels(mini, VERSION, tmp_path / "out", nusc=nusc, progress=False)
+    assert tree_bytes(tmp_path / "out") == tree_bytes(devkit_labels)
+
+
 def _corrupt_copy(mini: Path, tmp_path: Path) -> Path:
     root = tmp_path / "bad"
     shutil.copytree(mini, root)

@@ -21,6 +21,7 @@ import uuid
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -28,7 +29,6 @@ from tqdm import tqdm
 from panoptic_bench.datasets.nuscenes_boxes import BoxFrames, points_in_boxes
 from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar, open_nuscenes
 from panoptic_bench.errors import InputError
-from panoptic_bench.io import write_bytes, write_text
 
 STUFF_START_CLASS_ID = 24  # devkit panoptic_utils: general classes >= 24 are stuff
 
@@ -178,6 +178,7 @@ def make_panoptic_labels(
     *,
     workers: int = 1,
     progress: bool | None = None,
+    nusc: Any | None = None,
 ) -> list[dict]:
     """Generate Panoptic nuScenes labels for every sample of a dataroot.
 
@@ -194,6 +195,9 @@ def make_panoptic_labels(
         Worker processes (1: in this process).
     progress : bool or None
         tqdm progress bar (None: only on a terminal).
+    nusc : nuscenes.NuScenes, optional
+        The caller's already loaded devkit object for this dataroot and version (saves loading
+        the tables again); only read.
 
     Returns
     -------
@@ -202,7 +206,9 @@ def make_panoptic_labels(
     """
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
-    reader = NuScenesLidar(dataroot, version, nusc=open_nuscenes(dataroot, version))
+    reader = NuScenesLidar(
+        dataroot, version, nusc=nusc if nusc is not None else open_nuscenes(dataroot, version)
+    )
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError("output exists and is not a directory", out)
@@ -227,7 +233,10 @@ def make_panoptic_labels(
                     bar.update()
         bar.close()
         meta = out / version
-        write_text(stage / "panoptic.json", json.dumps(rows, indent=2))
+        # like the .npz files: complete in the private staging directory, then renamed in place
+        (stage / "panoptic.json").write_text(json.dumps(rows, indent=2))
+        if not (meta / "category.json").is_file():
+            shutil.copyfile(reader.table_root / "category.json", stage / "category.json")
         final = out / "panoptic" / version
         final.parent.mkdir(parents=True, exist_ok=True)
         if final.exists():
@@ -235,8 +244,8 @@ def make_panoptic_labels(
         os.replace(stage / "panoptic", final)
         meta.mkdir(parents=True, exist_ok=True)
         os.replace(stage / "panoptic.json", meta / "panoptic.json")
-        if not (meta / "category.json").is_file():
-            write_bytes(meta / "category.json", (reader.table_root / "category.json").read_bytes())
+        if (stage / "category.json").is_file():
+            os.replace(stage / "category.json", meta / "category.json")
         done = True
     finally:
         shutil.rmtree(stage, ignore_errors=True)
