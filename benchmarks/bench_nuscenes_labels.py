@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -119,23 +120,40 @@ def _tree(root: Path) -> dict[str, bytes]:
     }
 
 
-def bench_labels(root: Path, work: Path) -> dict[str, float]:
+def bench_labels(root: Path, work: Path, repeats: int) -> dict[str, float]:
+    """Best of ``repeats`` runs per side, "with loading" (tables read by the call) and "labels
+    only" (given the loaded devkit object); ours also timed on its first call in the process."""
     from nuscenes import NuScenes
     from nuscenes.panoptic.generate_panoptic_labels import generate_panoptic_labels
 
     from panoptic_bench.datasets.nuscenes_panoptic import make_panoptic_labels
 
-    t0 = time.perf_counter()
-    generate_panoptic_labels(NuScenes(VERSION, str(root), verbose=False), str(work / "devkit"))
-    t_dev = time.perf_counter() - t0
-    times = {"devkit": t_dev}
-    for workers in (1, 2):
-        out = work / f"ours{workers}"
+    times: dict[str, list[float]] = {}
+
+    def ours(key: str, out: Path, **kwargs) -> None:
+        shutil.rmtree(out, ignore_errors=True)
         t0 = time.perf_counter()
-        make_panoptic_labels(root, VERSION, out, workers=workers, progress=False)
-        times[f"ours_w{workers}"] = time.perf_counter() - t0
-        assert _tree(out) == _tree(work / "devkit"), "labels differ from the devkit"
-    return times
+        make_panoptic_labels(root, VERSION, out, progress=False, **kwargs)
+        times.setdefault(key, []).append(time.perf_counter() - t0)
+        if (work / "devkit").is_dir():
+            assert _tree(out) == _tree(work / "devkit"), "labels differ from the devkit"
+
+    ours("first", work / "first")  # first call: numba loads its cached kernel (once a process)
+    for _ in range(repeats):  # interleaved, so that both sides see the same machine load
+        t0 = time.perf_counter()
+        nusc = NuScenes(VERSION, str(root), verbose=False)
+        t1 = time.perf_counter()
+        generate_panoptic_labels(nusc, str(work / "devkit"))
+        t2 = time.perf_counter()
+        times.setdefault("devkit_load", []).append(t1 - t0)
+        times.setdefault("devkit", []).append(t2 - t0)
+        times.setdefault("devkit_labels", []).append(t2 - t1)
+        for workers in (1, 2):
+            out = work / f"ours{workers}"
+            ours(f"ours_w{workers}", out, workers=workers)
+            ours(f"ours_labels_w{workers}", out, workers=workers, nusc=nusc)
+    assert _tree(work / "first") == _tree(work / "devkit"), "labels differ from the devkit"
+    return {k: min(v) for k, v in times.items()}
 
 
 def bench_eval(root: Path, work: Path) -> dict[str, float]:
@@ -194,43 +212,73 @@ def bench_eval(root: Path, work: Path) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="2 samples per scene (20)")
+    parser.add_argument("--repeats", type=int, default=5, help="label runs per side (best kept)")
     args = parser.parse_args(argv)
     per_scene = 2 if args.quick else 5
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         root = work / "root"
         n = build(root, per_scene)
         ann = json.loads((root / VERSION / "sample_annotation.json").read_text())
-        lab = bench_labels(root, work)
+        lab = bench_labels(root, work, args.repeats)
         ev = bench_eval(root, work)
+    load_after = os.getloadavg()
     n_eval = ev.pop("n")
     differing, max_diff, values = ev.pop("differing"), ev.pop("max_diff"), ev.pop("values")
+    load = f"{load_before[0]:.1f} before, {load_after[0]:.1f} after"
     lines = [
         "## nuScenes panoptic labels and evaluation (`bench_nuscenes_labels.py`)",
         "",
         f"{n} samples of the real 34,688-point LIDAR_TOP sweep, {len(ann) / n:.0f} boxes per "
         "sample on average (30-60 per scene), non-identity ego poses and calibration. Outputs "
-        "checked against the devkit in the same run (labels: every file byte for byte; "
-        "evaluation: every number of `segmentation-result.json`, see below). Machine: shared "
-        "2-core box, other jobs running; the ratios are the figures that matter.",
+        "checked against the devkit in the same run (labels: every file byte for byte, every "
+        "run; evaluation: every number of `segmentation-result.json`, see below). Machine: "
+        f"shared 2-core box, other jobs running (1-min load average {load}); the ratios are "
+        "the figures that matter.",
         "",
-        "| task | devkit (s) | ours, 1 worker (s) | ours, 2 workers (s) | speed-up 1 w | speed-up 2 w |",
+        f"Label generation, best of {args.repeats} runs per side (devkit: "
+        "`generate_panoptic_labels`; ours: `make_panoptic_labels`):",
+        "",
+        "| label generation | devkit (s) | ours, 1 worker (s) | ours, 2 workers (s) "
+        "| speed-up 1 w | speed-up 2 w |",
         "|---|---|---|---|---|---|",
     ]
-    for task, t, count in (("label generation", lab, n), ("evaluation (mini_train)", ev, n_eval)):
+    for what, dev, key in (
+        ("with loading the tables", lab["devkit"], "ours_w"),
+        ("labels only (tables already loaded)", lab["devkit_labels"], "ours_labels_w"),
+    ):
+        w1, w2 = lab[f"{key}1"], lab[f"{key}2"]
         lines.append(
-            f"| {task}, {count} samples | {t['devkit']:.2f} | {t['ours_w1']:.2f} | "
-            f"{t['ours_w2']:.2f} | **{t['devkit'] / t['ours_w1']:.1f}x** | "
-            f"{t['devkit'] / t['ours_w2']:.1f}x |"
+            f"| {what}, {n} samples | {dev:.2f} | {w1:.3f} | {w2:.3f} | **{dev / w1:.0f}x** | "
+            f"{dev / w2:.0f}x |"
         )
     lines += [
         "",
-        "Times include loading the tables (`NuScenes(...)`) for both sides. Target: label "
-        "generation >= 20x the devkit.",
+        '"With loading": the devkit side times `NuScenes(version, dataroot)` + '
+        "`generate_panoptic_labels(nusc, out)`; ours times `make_panoptic_labels(dataroot, "
+        "version, out)`, which loads the same devkit object itself "
+        f'(`NuScenes(...)` took {lab["devkit_load"]:.3f} s). "Labels only": both sides get '
+        "the already loaded `NuScenes` object (ours: `nusc=`). Python imports (nuscenes, numba) "
+        "are outside every timing. Our first call in a fresh process also loads the cached "
+        f"numba kernel: that run took {lab['first']:.3f} s with loading "
+        f"({lab['devkit'] / lab['first']:.0f}x). Target: label generation >= 20x the devkit.",
         "",
-        f"Evaluation: {values - differing} of {values} numbers of `segmentation-result.json` are "
-        f"bit-identical to the devkit's; the other {differing} differ by {max_diff:.1e} (the "
-        "order in which matched IoUs are summed within a scan; asserted <= 1e-12).",
+        "| evaluation | devkit (s) | ours, 1 worker (s) | ours, 2 workers (s) | speed-up 1 w "
+        "| speed-up 2 w |",
+        "|---|---|---|---|---|---|",
+        f"| mini_train, {n_eval} samples, with loading | {ev['devkit']:.2f} | "
+        f"{ev['ours_w1']:.2f} | {ev['ours_w2']:.2f} | **{ev['devkit'] / ev['ours_w1']:.1f}x** | "
+        f"{ev['devkit'] / ev['ours_w2']:.1f}x |",
+        "",
+        f"Evaluation (one run per side): {values - differing} of {values} numbers of "
+        "`segmentation-result.json` are bit-identical to the devkit's"
+        + (
+            f"; the other {differing} differ by {max_diff:.1e} (the order in which matched IoUs "
+            "are summed within a scan; asserted <= 1e-12)."
+            if differing
+            else " (asserted <= 1e-12)."
+        ),
     ]
     text = "\n".join(lines) + "\n"
     print(text)
