@@ -239,7 +239,8 @@ def run_ablation(
     data_root : path
         Labelled SemanticKITTI-format root.
     out : path
-        Output directory: ``runs/<name>/`` per variant / baseline, ``report/`` (created).
+        Output directory (created): ``runs/<name>/`` per variant / baseline, ``report/``,
+        ``timing.json`` (seconds per phase).
     steps : int
         Training steps of every DS variant (one cached scan per step).
     max_train_scans, max_val_scans : int
@@ -260,7 +261,7 @@ def run_ablation(
     from panoptic_bench.dsnet.ablation_eval import EvalContext, score_baselines, score_variant
     from panoptic_bench.dsnet.checkpoint import load_checkpoint
     from panoptic_bench.errors import InputError
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import ensure_output_dir, write_json
 
     t_start = time.perf_counter()
     ckpt = load_checkpoint(checkpoint)
@@ -323,4 +324,5 @@ def run_ablation(
         index = build_report(runs, out / "report", command=command)
         seconds["report"] = time.perf_counter() - t0
     seconds["total"] = time.perf_counter() - t_start
+    write_json(out / "timing.json", {k: round(v, 2) for k, v in seconds.items()})
     return AblationSummary(out, runs, index, seconds, rows)

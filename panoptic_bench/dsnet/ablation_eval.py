@@ -149,11 +149,12 @@ def score_variant(ctx: EvalContext, variant, module, losses: Sequence[float]) ->
     if diags is not None:
         diags.write(run_dir)
     inf = ctx.ckpt.config.inference
-    tail = np.mean(losses[-max(1, len(losses) // 10) :]) if losses else float("nan")
+    k = max(1, len(losses) // 10)
+    head, tail = (np.mean(losses[:k]), np.mean(losses[-k:])) if losses else (np.nan, np.nan)
     notes = (
         f"{variant.kernel.value} kernel, bandwidth candidates {format_bandwidths(variant.bandwidths)}"
-        f" m, {variant.iterations} iterations; {ctx.training}; final DS loss (mean of last 10% "
-        f"steps) {tail:.3f}; final clustering {inf.ds_clusterer.value} {inf.ds_bandwidth:g} m, "
+        f" m, {variant.iterations} iterations; {ctx.training}; DS loss (mean of first / last 10% "
+        f"of the steps) {head:.3f} -> {tail:.3f}; final clustering {inf.ds_clusterer.value} {inf.ds_bandwidth:g} m, "
         f"nearest seed, min {inf.min_points} points, consensus fusion"
     )
     meta = _meta(
