@@ -142,12 +142,15 @@ def find_checkpoint(name: str) -> Path | None:
 
 
 def dsnet_regression(
-    checkpoint: Path, dataset: Path, sequences: Sequence[str], out: Path, *, threads: int = 0
+    checkpoint: Path, dataset: Path, sequences: Sequence[str], out: Path, *, threads: int = 1
 ) -> str:
     """DS-Net inference: official predictions plus the regressed-centre files under ``out``.
 
-    Same as ``panoptic-bench infer --checkpoint C --data D --split 08 --out OUT``. Returns the
-    method label (``DS-Net`` for a DS-Net checkpoint).
+    Same as ``panoptic-bench infer --checkpoint C --data D --split 08 --out OUT --threads 1``.
+    Returns the method label (``DS-Net`` for a DS-Net checkpoint). One torch thread by default:
+    the committed reports then regenerate bit for bit on any machine (float sums do not depend
+    on the thread count), and torch's OpenMP threads never compete with numba's threads of the
+    dynamic-shifting kernel or with the evaluation workers.
     """
     import torch
 
