@@ -30,6 +30,7 @@ bench: $(STAMP)
 report: $(STAMP)
 	$(VENV)/bin/panoptic-bench demo --out reports/synthetic --report-only
 	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti --out reports/real-scans --report-only
+	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti --no-checkpoint --out reports/real-scans-simulated --report-only
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

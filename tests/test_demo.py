@@ -15,7 +15,7 @@ from panoptic_bench.demo.real import run_real_scans
 from panoptic_bench.reports.runs import load_run
 
 REPO = Path(__file__).resolve().parents[1]
-COMMITTED_REAL = REPO / "reports" / "real-scans"
+COMMITTED_REAL = REPO / "reports" / "real-scans-simulated"
 METRICS = ("PQ", "PQ_dagger", "SQ", "RQ", "PQ_th", "PQ_st", "mIoU")
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
@@ -78,9 +78,9 @@ def test_summary_lists_every_run(tiny_demo):
 
 
 def test_committed_real_scans_table_regenerates_exactly(kitti_root, tmp_path):
-    """Rebuild the simulated-regression rows of reports/real-scans and compare with git."""
+    """Rebuild reports/real-scans-simulated (simulated regression) and compare with git."""
     committed = COMMITTED_REAL / "tables" / "table1_semantickitti_val.md"
-    assert committed.is_file(), "reports/real-scans is committed"
+    assert committed.is_file(), "reports/real-scans-simulated is committed"
     out = tmp_path / "real"
     result = run_real_scans(kitti_root, out, workers=1, use_checkpoint=False)
     fresh = out / "tables" / "table1_semantickitti_val.md"
