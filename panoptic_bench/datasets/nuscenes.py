@@ -16,167 +16,29 @@ Example
 
 from __future__ import annotations
 
-import hashlib
 import io as _io
 import os
 import shutil
 import uuid
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from panoptic_bench.datasets.nuscenes_spec import (  # noqa: F401 (public API re-exported here)
+    ATTRIBUTES,
+    GENERAL_CLASSES,
+    LIDAR_CHANNEL,
+    VISIBILITY_LEVELS,
+    BoxSpec,
+    SampleSpec,
+    SceneSpec,
+    _valid_scene_names,
+    scene_names,
+    token,
+    version_kind,
+)
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import write_array, write_bytes, write_json
-
-# The 32 general (fine) lidarseg classes; the position is the devkit category ``index``.
-GENERAL_CLASSES: tuple[str, ...] = (
-    "noise",
-    "animal",
-    "human.pedestrian.adult",
-    "human.pedestrian.child",
-    "human.pedestrian.construction_worker",
-    "human.pedestrian.personal_mobility",
-    "human.pedestrian.police_officer",
-    "human.pedestrian.stroller",
-    "human.pedestrian.wheelchair",
-    "movable_object.barrier",
-    "movable_object.debris",
-    "movable_object.pushable_pullable",
-    "movable_object.trafficcone",
-    "static_object.bicycle_rack",
-    "vehicle.bicycle",
-    "vehicle.bus.bendy",
-    "vehicle.bus.rigid",
-    "vehicle.car",
-    "vehicle.construction",
-    "vehicle.emergency.ambulance",
-    "vehicle.emergency.police",
-    "vehicle.motorcycle",
-    "vehicle.trailer",
-    "vehicle.truck",
-    "flat.driveable_surface",
-    "flat.other",
-    "flat.sidewalk",
-    "flat.terrain",
-    "static.manmade",
-    "static.other",
-    "static.vegetation",
-    "vehicle.ego",
-)
-ATTRIBUTES: tuple[str, ...] = (
-    "vehicle.moving",
-    "vehicle.stopped",
-    "vehicle.parked",
-    "cycle.with_rider",
-    "cycle.without_rider",
-    "pedestrian.sitting_lying_down",
-    "pedestrian.standing",
-    "pedestrian.moving",
-)
-VISIBILITY_LEVELS = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
-LIDAR_CHANNEL = "LIDAR_TOP"
-_SPLITS_OF_VERSION = {
-    "mini": ("mini_train", "mini_val"),
-    "trainval": ("train", "val"),
-    "test": ("test",),
-}
-
-
-@dataclass(frozen=True)
-class BoxSpec:
-    """One 3D box annotation in the GLOBAL frame.
-
-    ``instance`` is a stable key of the object, unique in the dataset (it becomes the instance
-    token); ``size`` is (w, l, h) as in nuScenes; ``rotation`` is a quaternion (w, x, y, z).
-    """
-
-    instance: str
-    category: str
-    translation: tuple[float, float, float]
-    size: tuple[float, float, float]
-    rotation: tuple[float, float, float, float]
-    attributes: tuple[str, ...] = ()
-    visibility: str = "4"
-
-
-@dataclass
-class SampleSpec:
-    """One keyframe: ego pose, the LIDAR_TOP sweep (sensor frame), its lidarseg labels and boxes.
-
-    ``points`` is float32 of shape (n_points, 5): x, y, z, intensity (0-255), ring index.
-    ``lidarseg`` is uint8 of shape (n_points,): general class index 0..31.
-    """
-
-    timestamp: int
-    ego_translation: tuple[float, float, float]
-    ego_rotation: tuple[float, float, float, float]
-    points: np.ndarray
-    lidarseg: np.ndarray
-    boxes: list[BoxSpec]
-
-
-@dataclass
-class SceneSpec:
-    """One scene: a split scene name, its keyframes and the LIDAR_TOP calibration (ego frame)."""
-
-    name: str
-    samples: list[SampleSpec]
-    lidar_translation: tuple[float, float, float]
-    lidar_rotation: tuple[float, float, float, float]
-    location: str = "singapore-onenorth"
-    description: str = ""
-
-
-def token(*parts: object) -> str:
-    """Deterministic 32-hex token from a readable key (``token("scene", "scene-0103")``)."""
-    return hashlib.md5("/".join(str(p) for p in parts).encode()).hexdigest()
-
-
-def version_kind(version: str) -> str:
-    """``"mini"``, ``"trainval"`` or ``"test"`` for a version string such as ``v1.0-mini``."""
-    for kind in _SPLITS_OF_VERSION:
-        if version.endswith(kind):
-            return kind
-    raise InputError(
-        f"unknown nuScenes version {version!r}; use one ending in -mini, -trainval or -test"
-    )
-
-
-def scene_names(version: str, split: str) -> list[str]:
-    """Scene names of a devkit split (``nuscenes.utils.splits``) valid for ``version``.
-
-    Parameters
-    ----------
-    version : str
-        E.g. ``"v1.0-mini"``.
-    split : str
-        E.g. ``"mini_val"``, ``"val"``, ``"train_detect"``.
-
-    Returns
-    -------
-    list of str
-        The scene names, in the devkit's order.
-    """
-    from nuscenes.utils.splits import create_splits_scenes
-
-    splits = create_splits_scenes(verbose=False)
-    if split not in splits:
-        raise InputError(f"unknown nuScenes split {split!r}; known: {', '.join(sorted(splits))}")
-    kind = version_kind(version)
-    allowed = {"mini": {"mini_train", "mini_val"}, "test": {"test"}}.get(
-        kind, {"train", "val", "train_detect", "train_track"}
-    )
-    if split not in allowed:
-        raise InputError(f"split {split!r} does not belong to version {version!r}")
-    return list(splits[split])
-
-
-def _valid_scene_names(version: str) -> set[str]:
-    names: set[str] = set()
-    for split in _SPLITS_OF_VERSION[version_kind(version)]:
-        names.update(scene_names(version, split))
-    return names
 
 
 def _check(scenes: list[SceneSpec], version: str) -> None:
