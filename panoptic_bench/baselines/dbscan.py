@@ -44,7 +44,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from panoptic_bench.baselines.radius_graph import _half_offsets
+from panoptic_bench.baselines.radius_graph import _half_offsets, grid_cells
 
 __all__ = ["dbscan_labels"]
 
@@ -280,22 +280,11 @@ def dbscan_labels(X: np.ndarray, eps: float, min_samples: int) -> tuple[np.ndarr
     half = _half_offsets(d)
     offsets = np.concatenate([np.zeros((1, d), np.int64), half, -half])
     k = int(np.abs(offsets).max())
-    grid = np.floor((X - X.min(0)) / side)
-    extent = grid.max(0) + 1 + 2 * k
-    if np.prod(extent) >= 2.0**62:  # keys would overflow
+    g = grid_cells(X, side, k)
+    if g is None:  # keys would overflow
         return _sklearn_labels(X, eps, min_samples)
-    grid = grid.astype(np.int64) + k
-    mult = np.cumprod(np.concatenate([[1], extent[:-1].astype(np.int64)]))
-    key = grid @ mult
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
-    cells = skey[starts]
+    order, ends, cells, mult, Xs, lo, hi = g.order, g.bounds, g.keys, g.mult, g.points, g.lo, g.hi
     n_cells = len(cells)
-    ends = np.append(starts, n).astype(np.int64)
-    Xs = np.ascontiguousarray(X[order])
-    lo = np.minimum.reduceat(Xs, starts, axis=0)
-    hi = np.maximum.reduceat(Xs, starts, axis=0)
     eps2 = float(eps) ** 2
     if not (((hi - lo) ** 2).sum(1) <= eps2).all():
         # a cell wider than eps: rounding of huge coordinates against a tiny eps beat the margin

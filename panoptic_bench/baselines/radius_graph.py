@@ -23,6 +23,7 @@ The result equals the naive definition exactly (tests compare against brute forc
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -72,6 +73,48 @@ def _linked(a: np.ndarray, b: np.ndarray, r2: float) -> bool:
     return False
 
 
+@dataclass(frozen=True)
+class GridCells:
+    """Points sorted by a uniform grid cell, with each occupied cell's extent.
+
+    ``order`` sorts the points by cell key; cell ``c`` holds sorted points
+    ``bounds[c]:bounds[c + 1]`` (``starts = bounds[:-1]``); ``keys`` (sorted) are the cells' integer keys, ``mult`` turns an
+    integer cell offset into a key offset; ``lo``/``hi`` are the cells' tight bounding boxes.
+    """
+
+    order: np.ndarray
+    starts: np.ndarray
+    bounds: np.ndarray
+    keys: np.ndarray
+    mult: np.ndarray
+    points: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+
+def grid_cells(X: np.ndarray, side: float, margin: int) -> GridCells | None:
+    """Hash the points of ``X`` (n, d) into cells of ``side``, keys padded by ``margin`` cells.
+
+    Returns None when the integer keys would overflow (points very far apart for ``side``);
+    callers then fall back to a pair-list route.
+    """
+    grid = np.floor((X - X.min(0)) / side)
+    extent = grid.max(0) + 1 + 2 * margin
+    if np.prod(extent) >= 2.0**62:
+        return None
+    grid = grid.astype(np.int64) + margin
+    mult = np.cumprod(np.concatenate([[1], extent[:-1].astype(np.int64)]))
+    key = grid @ mult
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    starts = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
+    bounds = np.append(starts, len(X)).astype(np.int64)
+    points = np.ascontiguousarray(X[order])
+    lo = np.minimum.reduceat(points, starts, axis=0)
+    hi = np.maximum.reduceat(points, starts, axis=0)
+    return GridCells(order, starts, bounds, skey[starts], mult, points, lo, hi)
+
+
 def radius_components(X: np.ndarray, radius: float) -> np.ndarray:
     """Cluster labels of the radius graph (definition in the module docstring).
 
@@ -95,23 +138,13 @@ def radius_components(X: np.ndarray, radius: float) -> np.ndarray:
     side = radius / np.sqrt(d) * _SHRINK
     offsets = _half_offsets(d)
     k = int(np.abs(offsets).max(initial=0))
-    grid = np.floor((X - X.min(0)) / side)
-    extent = grid.max(0) + 1 + 2 * k
-    if np.prod(extent) >= 2.0**62:  # keys would overflow: far-apart points, tiny radius
+    g = grid_cells(X, side, k)
+    if g is None:  # keys would overflow: far-apart points, tiny radius
         return _number_by_first_point(_pairs_components(X, radius))
-    grid = grid.astype(np.int64) + k
-    mult = np.cumprod(np.concatenate([[1], extent[:-1].astype(np.int64)]))
-    key = grid @ mult
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], skey[1:] != skey[:-1]]))
-    cells = skey[starts]
+    order, starts, cells, mult, Xs, lo, hi = g.order, g.starts, g.keys, g.mult, g.points, g.lo, g.hi
     n_cells = len(cells)
     cell_of = np.empty(n, np.int64)
     cell_of[order] = np.repeat(np.arange(n_cells), np.diff(np.append(starts, n)))
-    Xs = X[order]
-    lo = np.minimum.reduceat(Xs, starts, axis=0)
-    hi = np.maximum.reduceat(Xs, starts, axis=0)
     # candidate cell pairs
     a = np.repeat(np.arange(n_cells), len(offsets))
     want = cells[a] + np.tile(offsets @ mult, n_cells)
