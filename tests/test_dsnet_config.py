@@ -10,6 +10,8 @@ from panoptic_bench.dsnet.config import (
     Clusterer,
     DatasetFormat,
     DSNetConfig,
+    LRSchedule,
+    OptimConfig,
     ShiftKernel,
     load_config,
     save_config,
@@ -68,6 +70,9 @@ def test_defaults_round_trip_and_types():
         ({"augment": {"flip": 1}}, "augment.flip"),
         ({"optim": {"lr": -1.0}}, "optim.lr"),
         ({"data": {"train_sequences": [0]}}, "data.train_sequences"),
+        ({"optim": {"lr_schedule": "step"}}, "optim.lr_schedule"),
+        ({"optim": {"lr_min": 0.1}}, "optim.lr_min"),
+        ({"optim": {"lr_flat_epochs": -1}}, "optim.lr_flat_epochs"),
     ],
 )
 def test_rejects_bad_input_naming_key_and_file(tmp_path: Path, mapping, needle):
@@ -85,3 +90,14 @@ def test_replace_and_frozen():
     assert cfg.optim.lr == 0.5
     with pytest.raises(AttributeError):
         cfg.optim.lr = 1.0  # type: ignore[misc]
+
+
+def test_lr_schedule_hand_worked():
+    const = OptimConfig(lr=0.002)
+    assert [const.lr_at(e, 10) for e in (0, 5, 9)] == [0.002] * 3
+    cos = OptimConfig(lr=0.002, lr_schedule=LRSchedule.COSINE, lr_min=0.0002, lr_flat_epochs=2)
+    # flat for epochs 0 and 1, then a half cosine over the remaining 4 epochs of 6
+    assert cos.lr_at(0, 6) == cos.lr_at(1, 6) == cos.lr_at(2, 6) == 0.002
+    assert cos.lr_at(4, 6) == pytest.approx(0.0011)  # half-way: (lr + lr_min) / 2
+    assert cos.lr_at(3, 6) > cos.lr_at(4, 6) > cos.lr_at(5, 6) > 0.0002
+    assert cos.lr_at(6, 6) == pytest.approx(0.0002)

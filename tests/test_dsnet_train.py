@@ -19,7 +19,7 @@ import torch
 
 from panoptic_bench.cli import main as cli
 from panoptic_bench.dsnet.checkpoint import load_checkpoint
-from panoptic_bench.dsnet.config import DatasetFormat, DSNetConfig, save_config
+from panoptic_bench.dsnet.config import DatasetFormat, DSNetConfig, LRSchedule, save_config
 from panoptic_bench.dsnet.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -89,6 +89,17 @@ def test_resume_is_bit_for_bit(world: Path, cfg: DSNetConfig, tmp_path: Path):
     train(cfg, world, fresh, stage="semantic", epochs=0, progress=False)
     c = load_checkpoint(fresh / "checkpoints" / "semantic.pt")
     assert not _same_state(a.backbone, c.backbone)
+
+
+def test_cosine_schedule_sets_the_optimizer_rate(world: Path, cfg: DSNetConfig, tmp_path: Path):
+    sched = cfg.replace(optim={"lr_schedule": LRSchedule.COSINE, "lr_flat_epochs": 1})
+    train(sched, world, tmp_path, stage="semantic", epochs=3, progress=False)
+    rows = _rows(tmp_path)
+    want = [sched.optim.lr_at(e, 3) for e in range(3)]
+    assert want[0] == want[1] == sched.optim.lr > want[2] > 0
+    assert [float(r["lr"]) for r in rows] == pytest.approx(want)
+    ck = load_checkpoint(tmp_path / "checkpoints" / "semantic.pt")
+    assert ck.optimizer["param_groups"][0]["lr"] == pytest.approx(want[2])
 
 
 def test_checkpoint_contents(world: Path, cfg: DSNetConfig, tmp_path: Path):

@@ -53,6 +53,13 @@ class ShiftKernel(enum.Enum):
     GAUSSIAN = "gaussian"
 
 
+class LRSchedule(enum.Enum):
+    """Learning rate over a stage's epochs: constant (paper) or flat then half cosine."""
+
+    CONSTANT = "constant"
+    COSINE = "cosine"
+
+
 @dataclass(frozen=True)
 class GridConfig:
     """Cylindrical voxel grid: cells along (rho, phi, z) and the clipped ranges (m, degrees, m)."""
@@ -109,9 +116,18 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class OptimConfig:
-    """Adam optimisation, epochs per training stage, batch size, seed."""
+    """Adam optimisation, learning-rate schedule, epochs per training stage, batch size, seed.
+
+    ``lr_schedule`` is ``constant`` (the paper) or ``cosine``: the learning rate stays at ``lr``
+    for the first ``lr_flat_epochs`` epochs of a stage, then follows a half cosine down to
+    ``lr_min`` at the stage's last epoch. The rate of an epoch depends only on the epoch and the
+    stage's total, so resuming reproduces it.
+    """
 
     lr: float = 0.002
+    lr_schedule: LRSchedule = LRSchedule.CONSTANT
+    lr_min: float = 0.0
+    lr_flat_epochs: int = 0
     weight_decay: float = 0.0
     batch_size: int = 2
     epochs_semantic: int = 40
@@ -125,12 +141,24 @@ class OptimConfig:
         problems = []
         if not self.lr > 0:
             problems.append(f"optim.lr must be > 0, got {self.lr}")
+        if not 0 <= self.lr_min <= self.lr:
+            problems.append(f"optim.lr_min must be in [0, lr], got {self.lr_min}")
+        if self.lr_flat_epochs < 0:
+            problems.append(f"optim.lr_flat_epochs must be >= 0, got {self.lr_flat_epochs}")
         if self.batch_size < 1:
             problems.append(f"optim.batch_size must be >= 1, got {self.batch_size}")
         for name in ("epochs_semantic", "epochs_offset", "epochs_ds", "num_workers"):
             if getattr(self, name) < 0:
                 problems.append(f"optim.{name} must be >= 0")
         return problems
+
+    def lr_at(self, epoch: int, total: int) -> float:
+        """Learning rate of 0-based ``epoch`` in a stage of ``total`` epochs."""
+        if self.lr_schedule is LRSchedule.CONSTANT or epoch < self.lr_flat_epochs:
+            return self.lr
+        span = max(total - self.lr_flat_epochs, 1)
+        frac = min((epoch - self.lr_flat_epochs) / span, 1.0)
+        return self.lr_min + 0.5 * (self.lr - self.lr_min) * (1.0 + math.cos(math.pi * frac))
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,7 @@ __all__ = ["TrainContext", "train", "run_stage", "train_one_epoch"]
 CSV_FIELDS = (
     "stage",
     "epoch",
+    "lr",
     "train_loss",
     "val_mIoU",
     "val_PQ",
@@ -253,8 +254,11 @@ def run_stage(
     model = _wrap(stage, backbone, shift, ctx)
     for epoch in range(start_epoch, total):
         t0 = time.perf_counter()
+        lr = ctx.cfg.optim.lr_at(epoch, total)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
         loss = train_one_epoch(stage, model, backbone, shift, optimizer, ctx, epoch)
-        row = {"stage": stage, "epoch": epoch + 1, "train_loss": loss}
+        row = {"stage": stage, "epoch": epoch + 1, "lr": lr, "train_loss": loss}
         if (epoch + 1) % max(ctx.cfg.optim.val_every, 1) == 0 or epoch + 1 == total:
             row.update(_validate(stage, backbone, shift, ctx))
         row["seconds"] = time.perf_counter() - t0
