@@ -40,7 +40,7 @@ def _one_thread():
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory) -> tuple[Path, Path]:
     tmp = tmp_path_factory.mktemp("ablate")
-    world = write_tiny_world(tmp / "world", {"00": 3, "08": 2})
+    world = write_tiny_world(tmp / "world", {"00": 3, "01": 1, "08": 2})
     cfg = DSNetConfig.from_dict(TINY)
     cmap = SemanticKittiDataset(world, sequences=["00"]).class_map
     torch.manual_seed(0)
@@ -50,7 +50,8 @@ def setup(tmp_path_factory) -> tuple[Path, Path]:
     save_checkpoint(Checkpoint("offset", 0, cfg, cmap, state), ckpt)
     out = tmp / "out"
     args = ["ablate", "--checkpoint", str(ckpt), "--data", str(world), "--out", str(out)]
-    args += ["--train-sequences", "00", "--steps", "2", "--no-progress", "--data-label", "tiny"]
+    # no --train-sequences / --val-sequences: the checkpoint's own split (00 / 08) is the default
+    args += ["--steps", "2", "--no-progress", "--data-label", "tiny"]
     assert cli(args) == 0
     return out, world
 
@@ -70,6 +71,8 @@ def test_run_dirs_and_tags(setup):
     names = {p.name for p in (out / "runs").iterdir()}
     expected = {v.name for v in variants()} | BASELINES
     assert names == expected
+    meta = (out / "runs" / "dsnet" / "run.json").read_text()
+    assert "3 scans of seq 00 (" in meta and "seq 08 (2 scans)" in meta
     runs = {n: load_run(out / "runs" / n) for n in names}
     t4 = sorted(r.meta.bandwidths for r in runs.values() if r.meta.bandwidths)
     assert t4 == sorted(paper_bandwidth_sets())

@@ -31,11 +31,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--train-sequences",
         type=_sequences,
-        default=["00", "01", "02", "03"],
-        help="sequences the DS variants train on (default 00,01,02,03)",
+        default=None,
+        help="sequences the DS variants train on (default: the checkpoint's training sequences)",
     )
     p.add_argument(
-        "--val-sequences", type=_sequences, default=["08"], help="scored sequences (default 08)"
+        "--val-sequences",
+        type=_sequences,
+        default=None,
+        help="scored sequences (default: the checkpoint's validation sequences)",
     )
     p.add_argument("--steps", type=int, default=300, help="Adam steps per variant (default 300)")
     p.add_argument(

@@ -217,8 +217,8 @@ def run_ablation(
     data_root: str | Path,
     out: str | Path,
     *,
-    train_sequences: Sequence[str] = ("00", "01", "02", "03"),
-    val_sequences: Sequence[str] = ("08",),
+    train_sequences: Sequence[str] | None = None,
+    val_sequences: Sequence[str] | None = None,
     steps: int = 300,
     max_train_scans: int = 0,
     max_val_scans: int = 0,
@@ -241,6 +241,9 @@ def run_ablation(
     out : path
         Output directory (created): ``runs/<name>/`` per variant / baseline, ``report/``,
         ``timing.json`` (seconds per phase).
+    train_sequences, val_sequences : sequence of str, optional
+        Sequences the DS variants train on / that are scored (default: the checkpoint config's
+        ``data.train_sequences`` / ``data.val_sequences``, i.e. the backbone's own split).
     steps : int
         Training steps of every DS variant (one cached scan per step).
     max_train_scans, max_val_scans : int
@@ -267,6 +270,8 @@ def run_ablation(
     ckpt = load_checkpoint(checkpoint)
     if ckpt.class_map.dataset != "semantickitti":
         raise InputError("ablate needs a SemanticKITTI-format checkpoint and data", checkpoint)
+    train_sequences = list(train_sequences or ckpt.config.data.train_sequences)
+    val_sequences = list(val_sequences or ckpt.config.data.val_sequences)
     train_refs = scan_refs(data_root, train_sequences, max_train_scans)
     val_refs = scan_refs(data_root, val_sequences, max_val_scans)
     for what, refs, seqs in (("training", train_refs, train_sequences), ("validation", val_refs, val_sequences)):  # fmt: skip
