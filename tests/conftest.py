@@ -27,3 +27,14 @@ def shared_data() -> Path:
 def kitti_root(shared_data: Path) -> Path:
     """SemanticKITTI-format root with sequences/00 (3 real labelled scans)."""
     return shared_data / "semantickitti"
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Run a test on one torch intra-op thread (training tests: reproducible and fast)."""
+    import torch
+
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)

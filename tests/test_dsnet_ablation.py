@@ -29,12 +29,7 @@ from test_dsnet_train import TINY  # noqa: E402
 BASELINES = {"backbone", "backbone-fusion", "bfs", "dbscan", "hdbscan"}
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

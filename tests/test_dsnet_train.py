@@ -42,6 +42,9 @@ TINY = {
 }
 
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
 @pytest.fixture(scope="module")
 def world(tmp_path_factory) -> Path:
     return write_tiny_world(tmp_path_factory.mktemp("tiny"), {"00": 4, "08": 2})
@@ -50,14 +53,6 @@ def world(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def cfg() -> DSNetConfig:
     return DSNetConfig.from_dict(TINY)
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 def _rows(run: Path) -> list[dict]:
