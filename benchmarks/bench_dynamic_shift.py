@@ -30,8 +30,8 @@ import numba
 import numpy as np
 import torch
 
-from panoptic_bench.dsnet.dynamic_shift import DynamicShift, select_seeds
-from panoptic_bench.dsnet.shift_ops import flat_kernel_means
+from panoptic_bench.dsnet.model.dynamic_shift import DynamicShift, select_seeds
+from panoptic_bench.dsnet.model.shift_ops import flat_kernel_means
 from panoptic_bench.io import write_text
 
 HERE = Path(__file__).resolve().parent
@@ -79,7 +79,7 @@ def dense_shift(x: torch.Tensor, weights: list[torch.Tensor], chunk: int = 2500)
 COMPILE_SNIPPET = """
 import time, numpy as np, torch
 t0 = time.perf_counter()
-from panoptic_bench.dsnet.shift_ops import flat_kernel_means, gaussian_kernel_means
+from panoptic_bench.dsnet.model.shift_ops import flat_kernel_means, gaussian_kernel_means
 x = np.random.default_rng(0).normal(size=(50, 3))
 flat_kernel_means(x, (0.2, 1.7, 3.2))
 t1 = time.perf_counter()

@@ -75,7 +75,7 @@ def _load_scan(kind: str):
     import numpy as np
 
     from panoptic_bench.datasets import semantickitti as sk
-    from panoptic_bench.dsnet.data import LidarSample, SemanticKittiDataset
+    from panoptic_bench.dsnet.data.datasets import LidarSample, SemanticKittiDataset
 
     if kind == "real":
         ds = SemanticKittiDataset(KITTI, sequences=["00"])
@@ -139,13 +139,18 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
     import torch
 
     from panoptic_bench.baselines.panoptic import consensus_fusion, filter_small_instances
-    from panoptic_bench.dsnet import shift_ops  # noqa: F401 - numba kernels load with imports
     from panoptic_bench.dsnet.checkpoint import build_backbone, build_grid, build_shift
     from panoptic_bench.dsnet.config import Clusterer, load_config
-    from panoptic_bench.dsnet.dynamic_shift import assign_to_seeds, cluster_seeds, select_seeds
-    from panoptic_bench.dsnet.predictor import Predictor, make_clusterer
+    from panoptic_bench.dsnet.inference.clustering import make_clusterer
+    from panoptic_bench.dsnet.inference.predictor import Predictor
+    from panoptic_bench.dsnet.model import shift_ops  # noqa: F401 - numba kernels load with imports
+    from panoptic_bench.dsnet.model.dynamic_shift import (
+        assign_to_seeds,
+        cluster_seeds,
+        select_seeds,
+    )
+    from panoptic_bench.dsnet.model.voxelize import collate
     from panoptic_bench.dsnet.sparse import functional as spf
-    from panoptic_bench.dsnet.voxelize import collate
 
     torch.set_num_threads(int(os.environ.get("PB_BENCH_THREADS", THREADS)))
     rss_import = _rss_mib()

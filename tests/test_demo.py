@@ -132,7 +132,7 @@ def _random_dsnet_checkpoint(path: Path) -> Path:
         save_checkpoint,
     )
     from panoptic_bench.dsnet.config import DSNetConfig, load_config
-    from panoptic_bench.dsnet.data import ClassMap
+    from panoptic_bench.dsnet.data.datasets import ClassMap
 
     raw = load_config(REPO / "configs" / "dsnet_semantickitti.yaml").to_dict()
     raw["grid"]["size"] = [32, 32, 8]

@@ -7,8 +7,8 @@ import torch
 from sklearn.metrics import adjusted_rand_score
 
 from panoptic_bench.baselines.clustering import BFS
-from panoptic_bench.dsnet.ds_head import DSNetHead, shift_instances, shift_training_loss
-from panoptic_bench.dsnet.dynamic_shift import DynamicShift
+from panoptic_bench.dsnet.model.ds_head import DSNetHead, shift_instances, shift_training_loss
+from panoptic_bench.dsnet.model.dynamic_shift import DynamicShift
 
 THINGS = (1, 2)
 

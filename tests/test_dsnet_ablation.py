@@ -15,11 +15,11 @@ import pytest
 import torch
 
 from panoptic_bench.cli import main as cli
-from panoptic_bench.dsnet.ablation import paper_bandwidth_sets, train_variant, variants
-from panoptic_bench.dsnet.ablation_cache import TrainScan
+from panoptic_bench.dsnet.ablation.cache import TrainScan
+from panoptic_bench.dsnet.ablation.run import paper_bandwidth_sets, train_variant, variants
 from panoptic_bench.dsnet.checkpoint import Checkpoint, build_backbone, save_checkpoint
 from panoptic_bench.dsnet.config import DSNetConfig
-from panoptic_bench.dsnet.data import SemanticKittiDataset
+from panoptic_bench.dsnet.data.datasets import SemanticKittiDataset
 from panoptic_bench.reports.runs import load_run
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from panoptic_bench.dsnet.augment import augment_points
-from panoptic_bench.dsnet.losses import (
+from panoptic_bench.dsnet.data.augment import augment_points
+from panoptic_bench.dsnet.training.losses import (
     class_weights,
     instance_centers,
     label_counts,

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from panoptic_bench.dsnet.losses import instance_centers, offset_loss, semantic_loss
-from panoptic_bench.dsnet.model import PanopticBackbone
-from panoptic_bench.dsnet.voxelize import CylinderGrid, collate
+from panoptic_bench.dsnet.model.network import PanopticBackbone
+from panoptic_bench.dsnet.model.voxelize import CylinderGrid, collate
+from panoptic_bench.dsnet.training.losses import instance_centers, offset_loss, semantic_loss
 
 GRID = CylinderGrid(size=(32, 32, 8), rho_range=(1, 20), z_range=(-2, 2))
 

@@ -20,7 +20,7 @@ import torch
 from panoptic_bench.cli import main as cli
 from panoptic_bench.dsnet.checkpoint import load_checkpoint
 from panoptic_bench.dsnet.config import DatasetFormat, DSNetConfig, LRSchedule, save_config
-from panoptic_bench.dsnet.train import train
+from panoptic_bench.dsnet.training.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))
 from dsnet_tiny_world import write_tiny_world  # noqa: E402
@@ -127,8 +127,8 @@ def _eval_scores(world: Path, pred: Path, out: Path) -> dict:
 def test_train_infer_eval_smoke(world: Path, cfg: DSNetConfig, tmp_path: Path):
     from panoptic_bench.baselines.centers import read_centers
     from panoptic_bench.datasets.semantickitti import list_scans, read_labels
-    from panoptic_bench.dsnet.infer import load_predictor
-    from panoptic_bench.dsnet.predictor import evaluate_dataset
+    from panoptic_bench.dsnet.inference.predictor import evaluate_dataset
+    from panoptic_bench.dsnet.inference.run import load_predictor
 
     cfg_path = tmp_path / "tiny.yaml"
     save_config(cfg, cfg_path)
@@ -151,7 +151,7 @@ def test_train_infer_eval_smoke(world: Path, cfg: DSNetConfig, tmp_path: Path):
     scores = _eval_scores(world, pred, tmp_path / "eval")
     # the written tree scores exactly as the in-memory evaluation used for validation
     predictor, ck = load_predictor(ckpt)
-    from panoptic_bench.dsnet.infer import open_split
+    from panoptic_bench.dsnet.inference.run import open_split
 
     mem = evaluate_dataset(predictor, open_split(ck.config, world, "08"), progress=False)
     for key in ("PQ", "PQ_th", "PQ_st", "mIoU"):
@@ -191,8 +191,8 @@ def test_ds_stage_and_dynamic_shift_inference(world: Path, cfg: DSNetConfig, tmp
 
 
 def test_ddp_gloo_two_processes(world: Path, cfg: DSNetConfig, tmp_path: Path):
-    from panoptic_bench.dsnet.infer import load_predictor, open_split
-    from panoptic_bench.dsnet.predictor import evaluate_dataset
+    from panoptic_bench.dsnet.inference.predictor import evaluate_dataset
+    from panoptic_bench.dsnet.inference.run import load_predictor, open_split
 
     cfg_path = tmp_path / "tiny.yaml"
     save_config(cfg.replace(optim={"batch_size": 1}), cfg_path)
@@ -226,7 +226,7 @@ def test_shard_order_covers_every_sample_once_per_epoch():
 
 
 def test_training_set_augmentation_is_reproducible(world: Path, cfg: DSNetConfig):
-    from panoptic_bench.dsnet.data import TrainingSet, open_dataset
+    from panoptic_bench.dsnet.data.datasets import TrainingSet, open_dataset
 
     ds = open_dataset(world, cfg.data, "train")
     a = TrainingSet(ds, cfg.augment.__class__(max_points=500), seed=1)
@@ -242,7 +242,7 @@ def test_training_set_augmentation_is_reproducible(world: Path, cfg: DSNetConfig
 
 
 def test_dataset_instances_unique_and_errors(world: Path, cfg: DSNetConfig, tmp_path: Path):
-    from panoptic_bench.dsnet.data import open_dataset
+    from panoptic_bench.dsnet.data.datasets import open_dataset
     from panoptic_bench.errors import InputError
 
     s = open_dataset(world, cfg.data, "train").load(0)
@@ -261,7 +261,7 @@ def test_dataset_instances_unique_and_errors(world: Path, cfg: DSNetConfig, tmp_
 def test_nuscenes_root_train_infer_eval(cfg: DSNetConfig, tmp_path: Path):
     """A nuScenes-format root (synthetic, with panoptic labels) through the same interface."""
     from panoptic_bench.datasets.synthetic import generate_nuscenes
-    from panoptic_bench.dsnet.data import open_dataset
+    from panoptic_bench.dsnet.data.datasets import open_dataset
 
     root = generate_nuscenes(tmp_path / "nus", scenes=10, samples=1, progress=False)
     assert cli(["nuscenes", "make-labels", "--dataroot", str(root), "--version", "v1.0-mini",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from panoptic_bench.dsnet.voxelize import (
+from panoptic_bench.dsnet.model.voxelize import (
     CylinderGrid,
     PointVoxelEncoder,
     collate,

@@ -11,7 +11,7 @@ from sklearn.metrics import adjusted_rand_score
 
 from panoptic_bench.baselines.meanshift import MeanShift
 from panoptic_bench.dsnet.config import ShiftKernel
-from panoptic_bench.dsnet.dynamic_shift import (
+from panoptic_bench.dsnet.model.dynamic_shift import (
     DynamicShift,
     assign_to_seeds,
     cluster_seeds,
@@ -19,7 +19,7 @@ from panoptic_bench.dsnet.dynamic_shift import (
     flat_shift_step,
     select_seeds,
 )
-from panoptic_bench.dsnet.shift_ops import ball_sums, gaussian_kernel_means
+from panoptic_bench.dsnet.model.shift_ops import ball_sums, gaussian_kernel_means
 
 BWS = (0.2, 1.7, 3.2)
 

@@ -68,7 +68,7 @@ def handler(args: argparse.Namespace) -> int:
 
     import torch
 
-    from panoptic_bench.dsnet.ablation import run_ablation
+    from panoptic_bench.dsnet.ablation.run import run_ablation
     from panoptic_bench.errors import InputError
 
     for name in ("steps", "max_train_scans", "max_val_scans"):

@@ -42,7 +42,7 @@ def handler(args: argparse.Namespace) -> int:
     import torch
 
     from panoptic_bench.dsnet.config import Clusterer
-    from panoptic_bench.dsnet.infer import run_inference
+    from panoptic_bench.dsnet.inference.run import run_inference
     from panoptic_bench.errors import InputError
 
     if args.bandwidth is not None and not args.bandwidth > 0:

@@ -35,7 +35,7 @@ def handler(args: argparse.Namespace) -> int:
     import torch
 
     from panoptic_bench.dsnet.config import load_config
-    from panoptic_bench.dsnet.train import train
+    from panoptic_bench.dsnet.training.train import train
     from panoptic_bench.errors import InputError
 
     if args.epochs is not None and args.epochs < 0:

@@ -135,7 +135,7 @@ def find_checkpoint(name: str) -> Path | None:
     path = Path(str(resources.files("panoptic_bench"))) / "checkpoints" / name
     if not path.is_file():
         return None
-    for module in ("panoptic_bench.dsnet.model", "panoptic_bench.dsnet.dynamic_shift"):
+    for module in ("panoptic_bench.dsnet.model.network", "panoptic_bench.dsnet.model.dynamic_shift"):
         if importlib.util.find_spec(module) is None:
             return None
     return path
@@ -154,7 +154,7 @@ def dsnet_regression(
     """
     import torch
 
-    from panoptic_bench.dsnet.infer import run_inference
+    from panoptic_bench.dsnet.inference.run import run_inference
 
     if threads:
         torch.set_num_threads(threads)

@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 from panoptic_bench.dsnet.config import DSNetConfig
-from panoptic_bench.dsnet.data import ClassMap
+from panoptic_bench.dsnet.data.datasets import ClassMap
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import atomic_open
 
@@ -45,7 +45,7 @@ __all__ = [
 
 def build_grid(cfg: DSNetConfig) -> Any:
     """The cylindrical grid of the config (``voxelize.CylinderGrid``)."""
-    from panoptic_bench.dsnet.voxelize import CylinderGrid
+    from panoptic_bench.dsnet.model.voxelize import CylinderGrid
 
     g = cfg.grid
     return CylinderGrid(
@@ -55,7 +55,7 @@ def build_grid(cfg: DSNetConfig) -> Any:
 
 def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
     """The Cylinder3D backbone with semantic and offset heads, from explicit config values."""
-    from panoptic_bench.dsnet.model import PanopticBackbone
+    from panoptic_bench.dsnet.model.network import PanopticBackbone
 
     m = cfg.model
     return PanopticBackbone(
@@ -71,7 +71,7 @@ def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
 
 def build_shift(cfg: DSNetConfig, feature_dim: int) -> nn.Module:
     """The dynamic shifting module of the config's ``dynamic_shift`` section."""
-    from panoptic_bench.dsnet.dynamic_shift import DynamicShift
+    from panoptic_bench.dsnet.model.dynamic_shift import DynamicShift
 
     d = cfg.dynamic_shift
     return DynamicShift(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from panoptic_bench.dsnet.backbone import ConvActNorm
+from panoptic_bench.dsnet.model.backbone import ConvActNorm
 from panoptic_bench.dsnet.sparse import SparseTensor, SubMConv3d
 
 

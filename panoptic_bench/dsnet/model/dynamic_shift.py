@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from panoptic_bench.dsnet.config import ShiftKernel
-from panoptic_bench.dsnet.shift_ops import flat_kernel_means, gaussian_kernel_means
+from panoptic_bench.dsnet.model.shift_ops import flat_kernel_means, gaussian_kernel_means
 
 PAPER_BANDWIDTHS: tuple[float, ...] = (0.2, 1.7, 3.2)
 

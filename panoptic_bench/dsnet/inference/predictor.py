@@ -25,11 +25,12 @@ from torch import nn
 
 from panoptic_bench.dsnet import distributed as ddp
 from panoptic_bench.dsnet.checkpoint import build_grid
-from panoptic_bench.dsnet.config import Clusterer, DSNetConfig
-from panoptic_bench.dsnet.data import ClassMap, LidarDataset, LidarSample
-from panoptic_bench.dsnet.pipeline import backbone_forward
+from panoptic_bench.dsnet.config import DSNetConfig
+from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, LidarSample
+from panoptic_bench.dsnet.inference.clustering import make_clusterer
+from panoptic_bench.dsnet.model.forward import backbone_forward
 
-__all__ = ["Predictor", "ScanPrediction", "evaluate_dataset", "make_clusterer"]
+__all__ = ["Predictor", "ScanPrediction", "evaluate_dataset"]
 
 
 @dataclass
@@ -49,7 +50,7 @@ class ScanPrediction:
     features : ndarray of shape (n, F), float16 or None
         Backbone point features (kept only when asked for).
     shift : dict of str to ndarray, optional
-        DS-Net diagnostics of :func:`panoptic_bench.dsnet.pipeline.ds_cluster` (seed indices
+        DS-Net diagnostics of :func:`panoptic_bench.dsnet.inference.clustering.ds_cluster` (seed indices
         into the predicted thing points, trajectories, weights, implied bandwidths).
     thing_ids : tuple of int
         Thing classes (the thing points are those with ``sem_raw`` in it).
@@ -62,23 +63,6 @@ class ScanPrediction:
     features: np.ndarray | None = None
     shift: dict[str, np.ndarray] | None = field(default=None)
     thing_ids: tuple[int, ...] = ()
-
-
-def make_clusterer(kind: Clusterer, bandwidth: float) -> Any:
-    """A heuristic clusterer of ``panoptic_bench.baselines`` with its scale parameter set.
-
-    ``bandwidth`` is the mean-shift bandwidth (bin seeding, as DS-Net's code), the BFS radius,
-    or DBSCAN's ``eps`` (metres); HDBSCAN has no scale parameter and ignores it.
-    """
-    from panoptic_bench.baselines.clustering import make_clusterer as make
-
-    scale = {
-        Clusterer.MEANSHIFT: {"bandwidth": bandwidth, "bin_seeding": True},
-        Clusterer.BFS: {"radius": bandwidth},
-        Clusterer.DBSCAN: {"eps": bandwidth},
-        Clusterer.HDBSCAN: {},
-    }[kind]
-    return make(kind.value, **scale)
 
 
 class Predictor:
@@ -163,7 +147,7 @@ class Predictor:
     def _dynamic_shift(self, sample, sem, offsets, features):
         """DS path: shift FPS seeds, cluster them, nearest seed → instance, then fusion."""
         from panoptic_bench.baselines.panoptic import consensus_fusion, filter_small_instances
-        from panoptic_bench.dsnet.pipeline import ds_cluster
+        from panoptic_bench.dsnet.inference.clustering import ds_cluster
 
         inst = np.zeros(len(sem), dtype=np.int64)
         things = np.flatnonzero(self._things[sem])

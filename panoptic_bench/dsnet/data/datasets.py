@@ -18,8 +18,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from panoptic_bench.dsnet.augment import augment_points
 from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
+from panoptic_bench.dsnet.data.augment import augment_points
 from panoptic_bench.errors import InputError
 
 __all__ = [

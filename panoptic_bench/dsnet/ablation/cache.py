@@ -5,7 +5,7 @@ a fixed function of the scan. :func:`build_cache` runs the backbone once per sca
 
 - for training scans (:class:`TrainScan`): the FPS seeds of the regressed centres of the
   ground-truth things points, their point features and the tight-box centre of their
-  ground-truth instance — exactly the inputs of :func:`~panoptic_bench.dsnet.ds_head.
+  ground-truth instance — exactly the inputs of :func:`~panoptic_bench.dsnet.model.ds_head.
   shift_training_loss` (FPS is deterministic, so the seeds are the ones it would pick);
 - for validation scans (:class:`EvalScan`): xyz, the semantic prediction, the offsets, the
   features of the predicted things points and the raw ground-truth labels (for the evaluator).
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from panoptic_bench.dsnet.checkpoint import Checkpoint
-from panoptic_bench.dsnet.dynamic_shift import select_seeds
+from panoptic_bench.dsnet.model.dynamic_shift import select_seeds
 
 __all__ = ["EvalScan", "TrainScan", "build_cache", "scan_refs"]
 
@@ -98,7 +98,7 @@ def scan_refs(root: str | Path, sequences: Sequence[str], max_scans: int = 0) ->
 
 def _load(ref, things_lut: np.ndarray):
     from panoptic_bench.datasets import semantickitti as sk
-    from panoptic_bench.dsnet.data import LidarSample, _unique_instances
+    from panoptic_bench.dsnet.data.datasets import LidarSample, _unique_instances
 
     points = sk.read_scan(ref.scan)
     labels = sk.read_labels(ref.label)
@@ -141,9 +141,9 @@ def build_cache(
     """
     from tqdm import tqdm
 
-    from panoptic_bench.dsnet import losses
     from panoptic_bench.dsnet.checkpoint import build_backbone, build_grid
-    from panoptic_bench.dsnet.pipeline import backbone_forward
+    from panoptic_bench.dsnet.model.forward import backbone_forward
+    from panoptic_bench.dsnet.training import losses
 
     cfg, cmap = ckpt.config, ckpt.class_map
     backbone = build_backbone(cfg, cmap.num_classes)

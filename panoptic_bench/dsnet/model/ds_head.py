@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from panoptic_bench.baselines.meanshift import MeanShift
-from panoptic_bench.dsnet.dynamic_shift import (
+from panoptic_bench.dsnet.model.dynamic_shift import (
     Clusterer,
     DynamicShift,
     assign_to_seeds,

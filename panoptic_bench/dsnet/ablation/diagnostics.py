@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from panoptic_bench.dsnet.ablation_cache import EvalScan
+from panoptic_bench.dsnet.ablation.cache import EvalScan
 
 __all__ = ["Diagnostics", "MIN_SIZE_POINTS"]
 
@@ -47,7 +47,7 @@ class Diagnostics:
         self.fig6_written = False
 
     def add(self, run_dir: Path, scan: EvalScan, diag) -> None:
-        """Record one scan's :class:`~panoptic_bench.dsnet.ds_head.ShiftDiagnostics`."""
+        """Record one scan's :class:`~panoptic_bench.dsnet.model.ds_head.ShiftDiagnostics`."""
         from panoptic_bench.io import write_npz
         from panoptic_bench.reports.inputs import write_shift_iterations
 

@@ -1,8 +1,7 @@
-"""Glue between the data, the backbone, the losses and the dynamic shifting module.
+"""Training steps: how each training stage turns the backbone output into a loss.
 
-One place that knows how a list of :class:`~panoptic_bench.dsnet.data.LidarSample` becomes the
-backbone's batch, and how each training stage turns the backbone output into a loss. The
-training loop (:mod:`.train`) and inference (:mod:`.infer`) only call these functions.
+The training loop (:mod:`panoptic_bench.dsnet.training.train`) and the ablations call these;
+the batch itself comes from :func:`panoptic_bench.dsnet.model.forward.backbone_forward`.
 """
 
 from __future__ import annotations
@@ -14,13 +13,11 @@ import torch
 from torch import nn
 
 from panoptic_bench.dsnet.config import DSNetConfig
-from panoptic_bench.dsnet.data import ClassMap, LidarSample
+from panoptic_bench.dsnet.data.datasets import ClassMap, LidarSample
 
 __all__ = [
     "StageLoss",
-    "backbone_forward",
     "class_weights_for",
-    "ds_cluster",
     "ds_stage_loss",
     "stage_loss",
 ]
@@ -34,26 +31,11 @@ class StageLoss:
     parts: dict[str, float]
 
 
-def backbone_forward(model: nn.Module, samples: list[LidarSample], grid, device: torch.device):
-    """Voxelize ``samples`` on ``grid`` (a ``CylinderGrid``) into one batch and run the backbone.
-
-    Returns
-    -------
-    BackboneOutput
-        ``sem_logits`` (P, C), ``offsets`` (P, 3), ``point_features`` (P, F) over the
-        concatenated points of the samples, in sample order.
-    """
-    from panoptic_bench.dsnet.voxelize import collate
-
-    scans = [np.concatenate([s.xyz, s.remission[:, None]], axis=1) for s in samples]
-    return model(collate(scans, grid, device=device))
-
-
 def class_weights_for(
     dataset_sem: list[np.ndarray], class_map: ClassMap, power: float
 ) -> list[float]:
     """CE class weights from the training labels (:func:`losses.class_weights`), as floats."""
-    from panoptic_bench.dsnet import losses
+    from panoptic_bench.dsnet.training import losses
 
     counts = losses.label_counts(dataset_sem, class_map.num_classes)
     ignore = class_map.ignore_ids[0] if class_map.ignore_ids else None
@@ -87,7 +69,7 @@ def stage_loss(
     ``semantic``: ``ce * weighted CE + lovasz * Lovász-softmax``; ``offset`` adds
     ``offset * L1`` on ground-truth thing points towards the tight-box centre of their instance.
     """
-    from panoptic_bench.dsnet import losses
+    from panoptic_bench.dsnet.training import losses
 
     device = out.sem_logits.device
     sem = _cat(samples, "sem", device)
@@ -118,8 +100,8 @@ def ds_stage_loss(
     Seeds are the FPS sample of the regressed centres of the ground-truth thing points; their
     targets are the tight-box centres of their instances.
     """
-    from panoptic_bench.dsnet import losses
-    from panoptic_bench.dsnet.ds_head import shift_training_loss
+    from panoptic_bench.dsnet.model.ds_head import shift_training_loss
+    from panoptic_bench.dsnet.training import losses
 
     device = out.offsets.device
     total, start = out.offsets.new_zeros(()), 0
@@ -143,44 +125,3 @@ def ds_stage_loss(
             iteration_weights=cfg.loss.ds_iteration_weights,
         )
     return total / max(len(samples), 1)
-
-
-def ds_cluster(
-    shift: nn.Module,
-    points: np.ndarray,
-    centers: np.ndarray,
-    features: torch.Tensor,
-    cfg: DSNetConfig,
-) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Algorithm 1 on the predicted thing points of one scan.
-
-    Parameters
-    ----------
-    points, centers : ndarray of shape (M, 3)
-        Thing points and their regressed centres.
-    features : torch.Tensor of shape (M, F)
-
-    Returns
-    -------
-    labels : ndarray of shape (M,), int64
-        Cluster of each point's nearest seed.
-    diagnostics : dict of str to ndarray
-        ``seed_index`` (M',), ``positions`` (I + 1, M', 3) (the seed trajectories),
-        ``weights`` (I, M', l), ``bandwidths`` (I, M') implied Σ_j W_j δ_j, ``seed_labels``
-        (M',), ``candidates`` (l,) the bandwidth candidates δ_j.
-    """
-    from panoptic_bench.dsnet.ds_head import shift_instances
-    from panoptic_bench.dsnet.predictor import make_clusterer
-
-    inf = cfg.inference
-    labels, diag = shift_instances(
-        shift,
-        centers,
-        features,
-        points=points,
-        clusterer=make_clusterer(inf.ds_clusterer, inf.ds_bandwidth),
-        max_seeds=cfg.dynamic_shift.max_seeds,
-    )
-    arrays = diag.as_arrays()
-    arrays["candidates"] = np.asarray(cfg.dynamic_shift.bandwidths, dtype=np.float32)
-    return labels, arrays

@@ -3,13 +3,13 @@
 :func:`run_ablation` (CLI ``panoptic-bench ablate``):
 
 1. runs the frozen backbone of a stage-2 checkpoint once over the training and validation scans
-   (:mod:`.ablation_cache`);
+   (:mod:`.cache`);
 2. trains one dynamic shifting module per variant on the cache (Adam, the stage-``ds`` loss
-   :func:`~panoptic_bench.dsnet.ds_head.shift_training_loss`, fixed seed): the paper's six
+   :func:`~panoptic_bench.dsnet.model.ds_head.shift_training_loss`, fixed seed): the paper's six
    bandwidth sets (Table 4, read from :func:`panoptic_bench.reports.paper.paper_table`), 1-5
    iterations (Table 5) and direct regression with a Gaussian kernel (Fig. 4c);
 3. scores every variant on the validation cache (DS clustering: final mean shift, nearest seed,
-   consensus fusion; :mod:`.ablation_eval`), plus Backbone, Backbone with Fusion and BFS /
+   consensus fusion; :mod:`.scoring`), plus Backbone, Backbone with Fusion and BFS /
    DBSCAN / HDBSCAN on the very same regressed centres (Figs. 4a/4b), each into
    ``OUT/runs/<name>/`` (``scores.json``, ``run.json``); the default variant also gets the
    per-seed diagnostics of Figs. 5-7 (``analysis.json``, ``shift_iterations.npz``);
@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from panoptic_bench.dsnet.ablation_cache import TrainScan, build_cache, scan_refs
+from panoptic_bench.dsnet.ablation.cache import TrainScan, build_cache, scan_refs
 from panoptic_bench.dsnet.config import ShiftKernel
-from panoptic_bench.dsnet.dynamic_shift import DynamicShift
+from panoptic_bench.dsnet.model.dynamic_shift import DynamicShift
 
 __all__ = [
     "AblationSummary",
@@ -166,7 +166,7 @@ def train_variant(
     """
     from tqdm import tqdm
 
-    from panoptic_bench.dsnet.ds_head import shift_training_loss
+    from panoptic_bench.dsnet.model.ds_head import shift_training_loss
 
     if not cache:
         raise ValueError("no cached training scan with ground-truth things points")
@@ -261,7 +261,7 @@ def run_ablation(
     -------
     AblationSummary
     """
-    from panoptic_bench.dsnet.ablation_eval import EvalContext, score_baselines, score_variant
+    from panoptic_bench.dsnet.ablation.scoring import EvalContext, score_baselines, score_variant
     from panoptic_bench.dsnet.checkpoint import load_checkpoint
     from panoptic_bench.errors import InputError
     from panoptic_bench.io import ensure_output_dir, write_json

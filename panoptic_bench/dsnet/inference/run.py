@@ -35,8 +35,9 @@ from panoptic_bench.dsnet.checkpoint import (
     load_checkpoint,
 )
 from panoptic_bench.dsnet.config import Clusterer, DatasetFormat, DSNetConfig
-from panoptic_bench.dsnet.data import LidarDataset, NuScenesDataset, SemanticKittiDataset
-from panoptic_bench.dsnet.predictor import Predictor, ScanPrediction, make_clusterer
+from panoptic_bench.dsnet.data.datasets import LidarDataset, NuScenesDataset, SemanticKittiDataset
+from panoptic_bench.dsnet.inference.clustering import make_clusterer
+from panoptic_bench.dsnet.inference.predictor import Predictor, ScanPrediction
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import ensure_output_dir, write_json, write_npz
 

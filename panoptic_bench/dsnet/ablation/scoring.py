@@ -1,6 +1,6 @@
 """Scoring the ablation variants on the validation cache, one run directory each.
 
-Every prediction is assembled exactly as :class:`~panoptic_bench.dsnet.predictor.Predictor`
+Every prediction is assembled exactly as :class:`~panoptic_bench.dsnet.inference.predictor.Predictor`
 does (DS: FPS seeds → shift → final clustering ``inference.ds_clusterer`` → nearest seed →
 small-instance filter → consensus fusion; heuristics: :func:`~panoptic_bench.baselines.panoptic.
 assemble_panoptic` on the same regressed centres), encoded as official SemanticKITTI labels
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from panoptic_bench.dsnet.ablation_cache import EvalScan
+from panoptic_bench.dsnet.ablation.cache import EvalScan
 from panoptic_bench.dsnet.checkpoint import Checkpoint
 
 __all__ = ["RANGE_EDGES", "EvalContext", "score_baselines", "score_variant"]
@@ -31,7 +31,7 @@ RANGE_EDGES = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 80.0)
 
 @dataclass
 class EvalContext:
-    """Shared inputs of every scored run (see :func:`~panoptic_bench.dsnet.ablation.run_ablation`)."""
+    """Shared inputs of every scored run (see :func:`~panoptic_bench.dsnet.ablation.run.run_ablation`)."""
 
     ckpt: Checkpoint
     scans: Sequence[EvalScan]
@@ -101,8 +101,8 @@ def ds_predict(ctx: EvalContext, module, scan: EvalScan):
     sem : (n,) int64 after fusion; inst : (n,) int64; diagnostics : ShiftDiagnostics or None
     """
     from panoptic_bench.baselines.panoptic import consensus_fusion, filter_small_instances
-    from panoptic_bench.dsnet.ds_head import shift_instances
-    from panoptic_bench.dsnet.predictor import make_clusterer
+    from panoptic_bench.dsnet.inference.clustering import make_clusterer
+    from panoptic_bench.dsnet.model.ds_head import shift_instances
 
     cfg, cmap = ctx.ckpt.config, ctx.ckpt.class_map
     inst = np.zeros(len(scan.sem), dtype=np.int64)
@@ -128,11 +128,11 @@ def score_variant(ctx: EvalContext, variant, module, losses: Sequence[float]) ->
 
     The default variant also writes ``analysis.json`` (Figs. 5 and 7), ``shift_iterations.npz``
     (Fig. 6, first validation scan) and ``dynamic_shift/<seq>_<frame>.npz`` (per-seed weights,
-    implied bandwidths, trajectories) via :mod:`.ablation_diagnostics`.
+    implied bandwidths, trajectories) via :mod:`.diagnostics`.
     """
     from tqdm import tqdm
 
-    from panoptic_bench.dsnet.ablation_diagnostics import Diagnostics
+    from panoptic_bench.dsnet.ablation.diagnostics import Diagnostics
     from panoptic_bench.reports.inputs import write_run_meta
     from panoptic_bench.reports.tables import format_bandwidths
 

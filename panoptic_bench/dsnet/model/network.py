@@ -3,8 +3,8 @@
 Example
 -------
 >>> import torch
->>> from panoptic_bench.dsnet.model import PanopticBackbone
->>> from panoptic_bench.dsnet.voxelize import CylinderGrid, collate
+>>> from panoptic_bench.dsnet.model.network import PanopticBackbone
+>>> from panoptic_bench.dsnet.model.voxelize import CylinderGrid, collate
 >>> grid = CylinderGrid(size=(32, 32, 8))
 >>> model = PanopticBackbone(num_classes=5, init_size=4, grid=grid, point_hidden=(16,),
 ...                          point_feature_dim=16, voxel_feature_dim=8, offset_hidden=8)
@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from panoptic_bench.dsnet.backbone import AsymmetricUNet
-from panoptic_bench.dsnet.heads import InstanceHead, SemanticHead
-from panoptic_bench.dsnet.voxelize import (
+from panoptic_bench.dsnet.model.backbone import AsymmetricUNet
+from panoptic_bench.dsnet.model.heads import InstanceHead, SemanticHead
+from panoptic_bench.dsnet.model.voxelize import (
     N_POINT_FEATURES,
     CylinderGrid,
     PointVoxelEncoder,
@@ -109,7 +109,7 @@ class PanopticBackbone(nn.Module):
         return f"num_classes={self.num_classes}, grid_size={self.grid.size}"
 
     def forward(self, batch: VoxelBatch) -> BackboneOutput:
-        """Run on a batch from :func:`panoptic_bench.dsnet.voxelize.collate` (same device)."""
+        """Run on a batch from :func:`panoptic_bench.dsnet.model.voxelize.collate` (same device)."""
         if tuple(batch.spatial_shape) != tuple(self.grid.size):
             raise ValueError(
                 f"batch voxelized on a {batch.spatial_shape} grid, model built for "

@@ -39,13 +39,9 @@ from panoptic_bench.dsnet.checkpoint import (
     save_checkpoint,
 )
 from panoptic_bench.dsnet.config import DSNetConfig, save_config
-from panoptic_bench.dsnet.data import ClassMap, LidarDataset, TrainingSet, open_dataset
-from panoptic_bench.dsnet.pipeline import (
-    backbone_forward,
-    class_weights_for,
-    ds_stage_loss,
-    stage_loss,
-)
+from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, TrainingSet, open_dataset
+from panoptic_bench.dsnet.model.forward import backbone_forward
+from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import write_text
 
@@ -339,7 +335,7 @@ def _step_loss(stage, model, samples, ctx: TrainContext, weights, frozen: bool) 
 
 def _validate(stage: str, backbone: nn.Module, shift: nn.Module | None, ctx: TrainContext) -> dict:
     """Validation metrics (fractions) of this stage, accumulated over every rank."""
-    from panoptic_bench.dsnet.predictor import Predictor, evaluate_dataset
+    from panoptic_bench.dsnet.inference.predictor import Predictor, evaluate_dataset
 
     predictor = Predictor(
         backbone, shift if stage == "ds" else None, ctx.cfg, ctx.class_map, ctx.info.device

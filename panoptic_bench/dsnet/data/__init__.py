@@ -1,0 +1,1 @@
+"""DS-Net data: datasets of labelled scans, class maps and training augmentation."""

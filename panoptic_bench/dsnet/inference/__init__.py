@@ -1,0 +1,1 @@
+"""DS-Net inference: per-scan prediction, clusterers and the ``infer`` command runner."""

@@ -1,0 +1,1 @@
+"""DS-Net network: point encoder, cylinder U-Net, heads, voxelizer and dynamic shifting."""

@@ -1,0 +1,1 @@
+"""DS-Net training: losses, per-stage loss steps and the resumable training loop."""
