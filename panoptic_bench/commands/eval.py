@@ -10,14 +10,14 @@ import argparse
 import importlib
 
 #: modules of panoptic_bench.commands that add a sub-command to ``eval``
-EVAL_TARGETS: list[str] = ["semantickitti", "eval_nuscenes"]
+EVAL_TARGETS: list[str] = ["semantickitti", "eval_semantickitti_4d", "eval_nuscenes"]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``eval`` group and one sub-command per module in :data:`EVAL_TARGETS`."""
     parser = subparsers.add_parser(
         "eval",
-        help="score panoptic predictions (PQ, PQ-dagger, SQ, RQ, mIoU)",
+        help="score panoptic predictions (PQ, PQ-dagger, SQ, RQ, mIoU; LSTQ, PAT for 4D)",
         description="Score panoptic predictions against a dataset; see 'eval TARGET --help'.",
     )
     sub = parser.add_subparsers(dest="eval_target", metavar="TARGET", required=True)
