@@ -38,6 +38,7 @@ __all__ = [
     "build_grid",
     "build_shift",
     "export_checkpoint",
+    "is_official",
     "load_checkpoint",
     "save_checkpoint",
 ]
@@ -49,8 +50,19 @@ def build_grid(cfg: DSNetConfig) -> Any:
 
     g = cfg.grid
     return CylinderGrid(
-        size=g.size, rho_range=g.rho_range, phi_range_deg=g.phi_range_deg, z_range=g.z_range
+        size=g.size,
+        rho_range=g.rho_range,
+        phi_range_deg=g.phi_range_deg,
+        z_range=g.z_range,
+        official_cells=is_official(cfg),
     )
+
+
+def is_official(cfg: DSNetConfig) -> bool:
+    """True when the config builds the official DS-Net network (``model.variant: official``)."""
+    from panoptic_bench.dsnet.config import NetworkVariant
+
+    return cfg.model.variant is NetworkVariant.OFFICIAL
 
 
 def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
@@ -66,6 +78,8 @@ def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
         point_feature_dim=m.point_feature_dim,
         voxel_feature_dim=m.voxel_feature_dim,
         offset_hidden=m.offset_hidden,
+        spconv1_rulebooks=is_official(cfg),
+        offset_norm_first=is_official(cfg),
     )
 
 
@@ -74,6 +88,15 @@ def build_shift(cfg: DSNetConfig, feature_dim: int) -> nn.Module:
     from panoptic_bench.dsnet.model.dynamic_shift import DynamicShift
 
     d = cfg.dynamic_shift
+    if is_official(cfg):  # per iteration Linear(F, F) -> BatchNorm1d -> ReLU -> Linear(F, l)
+        return DynamicShift(
+            feature_dim,
+            bandwidths=d.bandwidths,
+            iterations=d.iterations,
+            kernel=d.kernel,
+            hidden=feature_dim,
+            batch_norm=True,
+        )
     return DynamicShift(
         feature_dim,
         bandwidths=d.bandwidths,

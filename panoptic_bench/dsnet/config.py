@@ -52,6 +52,21 @@ class ShiftKernel(enum.Enum):
     GAUSSIAN = "gaussian"
 
 
+class NetworkVariant(enum.Enum):
+    """Which DS-Net network a config builds.
+
+    ``nominal``: every conv acts with its nominal asymmetric kernel, offset head conv ->
+    LeakyReLU -> BatchNorm, dynamic-shift MLP Linear -> ReLU -> Linear, cells of range / size,
+    argmax over the non-ignored classes (the network of panoptic-bench's CPU checkpoints).
+    ``official``: the network of the DS-Net code and its released checkpoints (spconv 1.x
+    effective kernels, offset head conv -> BatchNorm -> LeakyReLU, dynamic-shift MLP with
+    BatchNorm, cells of range / (size - 1), the official inference rules).
+    """
+
+    NOMINAL = "nominal"
+    OFFICIAL = "official"
+
+
 class LRSchedule(enum.Enum):
     """Learning rate over a stage's epochs: constant (paper) or flat then half cosine."""
 
@@ -94,9 +109,11 @@ class ModelConfig:
     ``point_hidden`` / ``point_feature_dim``: per-point MLP before max-pooling into voxels;
     ``voxel_feature_dim``: compressed voxel features entering the U-Net; ``offset_hidden``:
     hidden width of the offset MLP (DS-Net: ``init_size``). The per-point features handed to
-    dynamic shifting have ``init_size`` channels.
+    dynamic shifting have ``init_size`` channels. ``variant``: :class:`NetworkVariant`
+    (``nominal`` when a config or checkpoint does not name one).
     """
 
+    variant: NetworkVariant = NetworkVariant.NOMINAL
     init_size: int = 32
     point_hidden: tuple[int, ...] = (64, 128, 256)
     point_feature_dim: int = 256

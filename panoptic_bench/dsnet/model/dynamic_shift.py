@@ -186,7 +186,14 @@ def assign_to_seeds(
     return np.asarray(seed_labels, dtype=np.int64)[nearest]
 
 
-def _mlp(feature_dim: int, hidden: int, out: int) -> nn.Sequential:
+def _mlp(feature_dim: int, hidden: int, out: int, batch_norm: bool) -> nn.Sequential:
+    if batch_norm:  # official: Linear -> BatchNorm1d -> ReLU -> Linear (keys 0, 1, 3)
+        return nn.Sequential(
+            nn.Linear(feature_dim, hidden),
+            nn.BatchNorm1d(hidden),
+            nn.ReLU(),
+            nn.Linear(hidden, out),
+        )
     return nn.Sequential(nn.Linear(feature_dim, hidden), nn.ReLU(), nn.Linear(hidden, out))
 
 
@@ -208,6 +215,9 @@ class DynamicShift(nn.Module):
         one bandwidth per seed in ``[min(bandwidths), max(bandwidths)]`` (ablation, eq. 19).
     gaussian_cutoff : float
         Gaussian kernel truncation radius in units of each seed's bandwidth.
+    batch_norm : bool
+        BatchNorm1d after the hidden Linear of each MLP (the official DS-Net, with
+        ``hidden = feature_dim = 32``); False: Linear -> ReLU -> Linear.
     """
 
     def __init__(
@@ -218,6 +228,7 @@ class DynamicShift(nn.Module):
         hidden: int = 64,
         kernel: ShiftKernel | str = ShiftKernel.FLAT,
         gaussian_cutoff: float = 3.0,
+        batch_norm: bool = False,
     ) -> None:
         super().__init__()
         if not bandwidths or min(bandwidths) <= 0:
@@ -231,13 +242,17 @@ class DynamicShift(nn.Module):
         self.kernel = ShiftKernel(kernel)
         self.gaussian_cutoff = float(gaussian_cutoff)
         n_out = len(self.bandwidths) if self.kernel is ShiftKernel.FLAT else 1
-        self.mlps = nn.ModuleList(_mlp(feature_dim, hidden, n_out) for _ in range(iterations))
+        self.batch_norm = bool(batch_norm)
+        self.mlps = nn.ModuleList(
+            _mlp(feature_dim, hidden, n_out, self.batch_norm) for _ in range(iterations)
+        )
         self.register_buffer("delta", torch.tensor(self.bandwidths), persistent=False)
 
     def extra_repr(self) -> str:
         return (
             f"feature_dim={self.feature_dim}, bandwidths={self.bandwidths}, "
-            f"iterations={self.iterations}, hidden={self.hidden}, kernel={self.kernel.value}"
+            f"iterations={self.iterations}, hidden={self.hidden}, kernel={self.kernel.value}, "
+            f"batch_norm={self.batch_norm}"
         )
 
     def regressed_bandwidth(self, logits: torch.Tensor) -> torch.Tensor:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from panoptic_bench.dsnet.model.backbone import ConvActNorm
+from panoptic_bench.dsnet.model.backbone import ConvActNorm, ConvNormAct
 from panoptic_bench.dsnet.sparse import SparseTensor, SubMConv3d
 
 
@@ -47,14 +47,20 @@ class InstanceHead(nn.Module):
         Width ``w`` of the per-point features (``init_size`` in DS-Net).
     hidden : int
         Hidden width of the point MLP.
+    norm_before_act : bool
+        Conv -> BatchNorm -> LeakyReLU, the order of the official DS-Net code; False (the
+        nominal network): conv -> LeakyReLU -> BatchNorm.
     """
 
-    def __init__(self, in_channels: int, feature_dim: int, hidden: int) -> None:
+    def __init__(
+        self, in_channels: int, feature_dim: int, hidden: int, norm_before_act: bool = False
+    ) -> None:
         super().__init__()
+        layer = ConvNormAct if norm_before_act else ConvActNorm
         self.convs = nn.Sequential(
-            ConvActNorm(in_channels, in_channels, (3, 3, 3)),
-            ConvActNorm(in_channels, 2 * feature_dim, (3, 3, 3)),
-            ConvActNorm(2 * feature_dim, feature_dim, (3, 3, 3)),
+            layer(in_channels, in_channels, (3, 3, 3)),
+            layer(in_channels, 2 * feature_dim, (3, 3, 3)),
+            layer(2 * feature_dim, feature_dim, (3, 3, 3)),
         )
         self.mlp = nn.Sequential(
             nn.Linear(feature_dim + 3, hidden),

@@ -81,6 +81,14 @@ class PanopticBackbone(nn.Module):
         Voxel feature width after compression (16).
     offset_hidden : int or None
         Hidden width of the offset MLP (DS-Net: ``init_size``; None means that).
+    spconv1_rulebooks : bool
+        U-Net convs act with the effective kernels of the official spconv 1.x network
+        (:mod:`panoptic_bench.dsnet.model.backbone`).
+    offset_norm_first : bool
+        Offset-head convs in the official order conv -> BatchNorm -> LeakyReLU.
+
+    Both flags are False for the nominal network and True for the official one
+    (``model.variant`` of the config, see :func:`panoptic_bench.dsnet.checkpoint.build_backbone`).
     """
 
     def __init__(
@@ -92,6 +100,8 @@ class PanopticBackbone(nn.Module):
         point_feature_dim: int = 64,
         voxel_feature_dim: int = 16,
         offset_hidden: int | None = None,
+        spconv1_rulebooks: bool = False,
+        offset_norm_first: bool = False,
     ) -> None:
         super().__init__()
         self.grid = CylinderGrid() if grid is None else grid
@@ -99,10 +109,13 @@ class PanopticBackbone(nn.Module):
         self.encoder = PointVoxelEncoder(
             N_POINT_FEATURES, tuple(point_hidden), point_feature_dim, voxel_feature_dim
         )
-        self.unet = AsymmetricUNet(voxel_feature_dim, init_size)
+        self.unet = AsymmetricUNet(voxel_feature_dim, init_size, spconv1_rulebooks)
         self.semantic_head = SemanticHead(self.unet.out_channels, num_classes)
         self.instance_head = InstanceHead(
-            self.unet.out_channels, init_size, init_size if offset_hidden is None else offset_hidden
+            self.unet.out_channels,
+            init_size,
+            init_size if offset_hidden is None else offset_hidden,
+            norm_before_act=offset_norm_first,
         )
 
     def extra_repr(self) -> str:

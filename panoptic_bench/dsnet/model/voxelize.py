@@ -7,6 +7,13 @@ every point gets a voxel and a prediction).
 
 Point features (9 per point, Cylinder3D order): offset of the point to its voxel centre in
 cylindrical coordinates ``(d_rho, d_phi, d_z)``, then ``rho, phi, z, x, y, remission``.
+
+Two cell rules (``CylinderGrid.official_cells``):
+
+- nominal: cell = range / size, computed in the points' dtype (torch);
+- official (DS-Net ``dataloader/dataset.py``): cell = range / (size - 1), i.e. the upper bound
+  is the *start* of the last cell; polar coordinates in float32, then clipping, cell indices,
+  voxel centres and relative features in float64 (numpy), cast to float32 at the end.
 """
 
 from __future__ import annotations
@@ -39,9 +46,11 @@ class CylinderGrid:
     rho_range: tuple[float, float] = (3.0, 50.0)
     phi_range_deg: tuple[float, float] = (-180.0, 180.0)
     z_range: tuple[float, float] = (-3.0, 1.5)
+    official_cells: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "size", tuple(int(s) for s in self.size))
+        object.__setattr__(self, "official_cells", bool(self.official_cells))
         for name in ("rho_range", "phi_range_deg", "z_range"):
             object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
         if len(self.size) != 3 or min(self.size) < 1:
@@ -63,8 +72,12 @@ class CylinderGrid:
 
     @property
     def cell_size(self) -> tuple[float, float, float]:
-        """Cell extent (rho m, phi rad, z m)."""
-        return tuple((hi - lo) / n for lo, hi, n in zip(self.min_bound, self.max_bound, self.size))  # type: ignore[return-value]
+        """Cell extent (rho m, phi rad, z m): range / size, or range / (size - 1) (official)."""
+        d = 1 if self.official_cells else 0
+        return tuple(  # type: ignore[return-value]
+            (hi - lo) / max(n - d, 1)
+            for lo, hi, n in zip(self.min_bound, self.max_bound, self.size)
+        )
 
     @classmethod
     def from_dict(cls, mapping: dict[str, Any]) -> CylinderGrid:
@@ -73,11 +86,14 @@ class CylinderGrid:
         unknown = sorted(set(mapping) - known)
         if unknown:
             raise ValueError(f"unknown grid keys {unknown}; known: {sorted(known)}")
-        return cls(**{k: tuple(v) for k, v in mapping.items()})
+        return cls(**{k: v if isinstance(v, bool) else tuple(v) for k, v in mapping.items()})
 
-    def to_dict(self) -> dict[str, list]:
+    def to_dict(self) -> dict[str, Any]:
         """Plain mapping (lists, not tuples) that :meth:`from_dict` reads back."""
-        return {f.name: list(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        return {
+            f.name: v if isinstance(v := getattr(self, f.name), bool) else list(v)
+            for f in dataclasses.fields(self)
+        }
 
 
 def cylindrical(xyz: torch.Tensor) -> torch.Tensor:
@@ -89,6 +105,10 @@ def cylindrical(xyz: torch.Tensor) -> torch.Tensor:
 
 def voxel_indices(xyz: torch.Tensor, grid: CylinderGrid) -> torch.Tensor:
     """Cell (i_rho, i_phi, i_z) of each point, shape (n, 3), int64; outside points clipped."""
+    if grid.official_cells:
+        pts = xyz.detach().cpu().numpy()
+        _, idx = official_point_features(pts, np.zeros(len(pts), np.float32), grid)
+        return torch.from_numpy(idx).to(xyz.device)
     pol = cylindrical(xyz)
     lo = pol.new_tensor(grid.min_bound)
     hi = pol.new_tensor(grid.max_bound)
@@ -119,6 +139,14 @@ def point_features(
     indices : torch.Tensor
         Array of shape (n, 3), int64, from :func:`voxel_indices`.
     """
+    if grid.official_cells:
+        feats_np, idx_np = official_point_features(
+            xyz.detach().cpu().numpy(), remission.detach().cpu().numpy(), grid
+        )
+        return (
+            torch.from_numpy(feats_np).to(device=xyz.device, dtype=xyz.dtype),
+            torch.from_numpy(idx_np).to(xyz.device),
+        )
     pol = cylindrical(xyz)
     idx = voxel_indices(xyz, grid)
     centre = (idx.to(pol.dtype) + 0.5) * pol.new_tensor(grid.cell_size) + pol.new_tensor(
@@ -126,6 +154,38 @@ def point_features(
     )
     feats = torch.cat([pol - centre, pol, xyz[:, :2], remission[:, None].to(pol.dtype)], dim=1)
     return feats, idx
+
+
+def official_point_features(
+    xyz: np.ndarray, remission: np.ndarray, grid: CylinderGrid
+) -> tuple[np.ndarray, np.ndarray]:
+    """9-D point features and cell indices by the official DS-Net rule (module docstring).
+
+    Parameters
+    ----------
+    xyz : np.ndarray of shape (n, 3), float32
+    remission : np.ndarray of shape (n,), float32
+    grid : CylinderGrid
+        Its ranges and size; the cell is ``range / (size - 1)`` whatever ``official_cells``.
+
+    Returns
+    -------
+    features : np.ndarray of shape (n, 9), float32
+    indices : np.ndarray of shape (n, 3), int64, in ``0 .. size - 1``
+    """
+    xyz = np.asarray(xyz, dtype=np.float32)
+    rho = np.sqrt(xyz[:, 0] ** 2 + xyz[:, 1] ** 2)
+    phi = np.arctan2(xyz[:, 1], xyz[:, 0])
+    pol = np.stack([rho, phi, xyz[:, 2]], axis=1)  # float32, as the official dataloader
+    lo = np.asarray(grid.min_bound, dtype=np.float64)
+    hi = np.asarray(grid.max_bound, dtype=np.float64)
+    cell = (hi - lo) / (np.asarray(grid.size, dtype=np.int64) - 1)
+    idx = np.floor((np.clip(pol, lo, hi) - lo) / cell).astype(np.int64)
+    centre = (idx.astype(np.float32) + 0.5) * cell + lo
+    feats = np.concatenate(
+        [pol - centre, pol, xyz[:, :2], np.asarray(remission, np.float32)[:, None]], axis=1
+    )
+    return feats.astype(np.float32), idx
 
 
 @dataclass

@@ -49,8 +49,21 @@ class SubMConv3d(_ConvBase):
     ----------
     in_channels, out_channels : int
     kernel_size : int or tuple of 3 odd ints
-        E.g. 3, (1, 3, 3), (3, 1, 3), (3, 1, 1).
+        Nominal kernel, e.g. 3, (1, 3, 3), (3, 1, 3), (3, 1, 1); the weight has
+        ``prod(kernel_size)`` slices, shape (prod(kernel_size), in_channels, out_channels).
     bias : bool
+    effective_kernel : tuple of 3 odd ints, optional
+        Kernel the layer actually applies (default: ``kernel_size``). It must have at most
+        ``prod(kernel_size)`` offsets; slice ``k`` of the weight then multiplies the ``k``-th
+        offset of ``effective_kernel`` in row-major order and the remaining slices are unused.
+        This is what spconv 1.x computes when a layer reuses the neighbour pairs of an earlier
+        layer with the same ``indice_key`` (the released DS-Net weights were trained so).
+
+    Examples
+    --------
+    >>> conv = SubMConv3d(4, 8, (3, 3, 3), effective_kernel=(1, 3, 3))
+    >>> tuple(conv.weight.shape), conv.effective_kernel
+    ((27, 4, 8), (1, 3, 3))
     """
 
     def __init__(
@@ -59,13 +72,32 @@ class SubMConv3d(_ConvBase):
         out_channels: int,
         kernel_size: int | tuple[int, int, int] = 3,
         bias: bool = False,
+        effective_kernel: int | tuple[int, int, int] | None = None,
     ) -> None:
         super().__init__(in_channels, out_channels, kernel_size, bias)
         if any(k % 2 == 0 for k in self.kernel_size):
             raise ValueError(f"submanifold kernels must be odd, got {self.kernel_size}")
+        eff = self.kernel_size if effective_kernel is None else effective_kernel
+        self.effective_kernel = _as_triple(eff, "effective_kernel")
+        if any(k % 2 == 0 for k in self.effective_kernel):
+            raise ValueError(f"effective kernels must be odd, got {self.effective_kernel}")
+        if math.prod(self.effective_kernel) > self.weight.shape[0]:
+            raise ValueError(
+                f"effective kernel {self.effective_kernel} has more offsets than the "
+                f"{self.kernel_size} weight"
+            )
+
+    def extra_repr(self) -> str:
+        extra = super().extra_repr()
+        if self.effective_kernel != self.kernel_size:
+            extra += f", effective_kernel={self.effective_kernel}"
+        return extra
 
     def forward(self, x: SparseTensor) -> SparseTensor:
-        return F.submanifold_conv3d(x, self.weight, self.kernel_size, self.bias)
+        if self.effective_kernel == self.kernel_size:
+            return F.submanifold_conv3d(x, self.weight, self.kernel_size, self.bias)
+        n = math.prod(self.effective_kernel)
+        return F.submanifold_conv3d(x, self.weight[:n], self.effective_kernel, self.bias)
 
 
 class SparseConv3d(_ConvBase):
