@@ -167,7 +167,11 @@ class DBSCAN(_Estimator):
 
 
 class HDBSCAN(_Estimator):
-    """HDBSCAN (the ``hdbscan`` package) with noise resolved by ``noise``.
+    """HDBSCAN (the ``hdbscan`` package's stages) with noise resolved by ``noise``.
+
+    Labels come from :func:`~panoptic_bench.baselines.hdbscan_tree.hdbscan_labels`: Prim's
+    spanning tree and a stable edge sort, so they are the same on every machine (plain
+    ``hdbscan.HDBSCAN`` orders tied edges differently on AVX-512 and other CPUs).
 
     Parameters
     ----------
@@ -219,18 +223,14 @@ class HDBSCAN(_Estimator):
         elif n < max(2, self.min_samples or self.min_cluster_size):
             raw = np.full(n, -1, dtype=np.int64)  # hdbscan cannot run: every point is noise
         else:
-            import hdbscan
+            from panoptic_bench.baselines.hdbscan_tree import hdbscan_labels
 
-            raw = (
-                hdbscan.HDBSCAN(
-                    min_cluster_size=self.min_cluster_size,
-                    min_samples=self.min_samples,
-                    cluster_selection_epsilon=self.cluster_selection_epsilon,
-                    allow_single_cluster=self.allow_single_cluster,
-                    core_dist_n_jobs=1,
-                )
-                .fit(X)
-                .labels_
+            raw = hdbscan_labels(
+                X,
+                min_cluster_size=self.min_cluster_size,
+                min_samples=self.min_samples,
+                cluster_selection_epsilon=self.cluster_selection_epsilon,
+                allow_single_cluster=self.allow_single_cluster,
             )
         self.noise_mask_ = raw < 0
         self.labels_ = resolve_noise(X, raw, Noise(self.noise))
