@@ -1,14 +1,24 @@
 """Small file helpers shared by every writer: atomic writes and output-directory checks.
 
 Outputs are written to a temporary file in the destination directory and renamed into
-place, so an interrupted run never leaves a half-written file behind.
+place, so an interrupted run never leaves a half-written file behind. Files get the mode of an
+ordinary write (``0o666`` minus the umask), not ``mkstemp``'s private ``0o600``. A full disk
+(``ENOSPC``) is a user error: :class:`~panoptic_bench.errors.InputError`, temp file removed.
+
+Trees of files (predictions, centres, label sets) are written with :func:`output_tree`: into a
+temporary sibling directory that is renamed into place only when every file is complete, so an
+error or Ctrl-C on the last scan leaves nothing behind. :func:`check_output_dir` and
+:func:`check_output_file` are the output policy shared by every command: never inside (or equal
+to) an input, never over a non-empty directory or an existing file without ``overwrite``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,18 +43,44 @@ def atomic_open(path: str | Path, mode: str = "w", **kwargs: Any) -> Iterator[IO
     if "r" in mode or "a" in mode:
         raise ValueError("atomic_open only writes")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise _write_error(exc, path) from None
+    try:
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, mode, **kwargs) as fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.errno in FULL_DISK:
+            raise _write_error(exc, path) from None
         raise
+
+
+#: errno values of a full disk or exhausted quota: user errors, reported as InputError.
+FULL_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def current_umask() -> int:
+    """The process umask (read without changing it for longer than one call)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _write_error(exc: OSError, path: Path) -> Exception:
+    """InputError for a write that failed for a user-fixable reason; other errors unchanged."""
+    if exc.errno in FULL_DISK:
+        return InputError("no space left on the device; free space or choose another output", path)
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return InputError(f"cannot write here ({exc.strerror}); choose another output", path)
+    return exc
 
 
 def write_bytes(path: str | Path, data: bytes) -> None:
@@ -114,3 +150,95 @@ def ensure_output_dir(path: str | Path, *, overwrite: bool = True, inputs: tuple
     except OSError as exc:
         raise InputError(f"cannot create output directory ({exc.strerror})", path) from None
     return out
+
+
+def check_output_dir(output: str | Path, *, overwrite: bool, inputs: tuple | list = ()) -> None:
+    """The shared policy for an output directory; creates nothing.
+
+    Raises :class:`InputError` if ``output`` equals or lies inside one of ``inputs``, is a file,
+    or is a non-empty directory while ``overwrite`` is False. Call it before reading the inputs.
+    """
+    check_output_location(output, inputs)
+    out = Path(output)
+    if not overwrite and out.is_dir() and any(out.iterdir()):
+        raise InputError(
+            "output directory exists and is not empty; pass --overwrite to replace its files "
+            "or choose another output",
+            output,
+        )
+
+
+def check_output_file(output: str | Path, *, overwrite: bool, inputs: tuple | list = ()) -> None:
+    """The shared policy for a single output file; creates nothing.
+
+    Raises :class:`InputError` if ``output`` is one of the ``inputs`` (same path or same file),
+    lies inside an input directory, is a directory, or exists while ``overwrite`` is False.
+    """
+    out = Path(output).resolve()
+    for src in inputs:
+        src_path = Path(src).resolve()
+        same = out == src_path or (
+            out.exists() and src_path.exists() and os.path.samefile(out, src_path)
+        )
+        if same:
+            raise InputError("output is the input file; choose another output path", output)
+        if src_path.is_dir() and src_path in out.parents:
+            raise InputError(f"output lies inside the input tree {src_path}", output)
+    if out.is_dir():
+        raise InputError("output is a directory; give a file path", output)
+    if out.exists() and not overwrite:
+        raise InputError("output file exists; pass --overwrite to replace it", output)
+
+
+@contextlib.contextmanager
+def output_tree(
+    output: str | Path, *, overwrite: bool = False, inputs: tuple | list = ()
+) -> Iterator[Path]:
+    """Write a directory tree all-or-nothing: yield a temporary sibling, rename it into place.
+
+    Parameters
+    ----------
+    output : str or Path
+        Final directory; checked with :func:`check_output_dir` first.
+    overwrite : bool
+        Allow a non-empty ``output``: the new files then replace files of the same name in it
+        (each by an atomic rename), other files stay.
+    inputs : tuple of paths
+        Input trees ``output`` may not lie in.
+
+    Yields
+    ------
+    Path
+        An empty directory (same file system as ``output``) to write everything into. On any
+        error or interruption it is deleted and ``output`` is left exactly as it was.
+    """
+    check_output_dir(output, overwrite=overwrite, inputs=inputs)
+    final = Path(output).resolve()
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
+        os.chmod(tmp, 0o777 & ~current_umask())
+    except OSError as exc:
+        raise _write_error(exc, final) from None
+    try:
+        yield tmp
+        _publish_tree(tmp, final)
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise _write_error(exc, final) from None
+        raise
+
+
+def _publish_tree(tmp: Path, final: Path) -> None:
+    """Move the finished tree ``tmp`` to ``final`` (rename, or file by file into a non-empty one)."""
+    if final.is_dir() and not any(final.iterdir()):
+        final.rmdir()
+    if not final.exists():
+        os.rename(tmp, final)
+        return
+    for src in sorted(p for p in tmp.rglob("*") if not p.is_dir()):
+        dest = final / src.relative_to(tmp)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(src, dest)
+    shutil.rmtree(tmp)
