@@ -4,19 +4,22 @@ Each sub-command lives in a module of :mod:`panoptic_bench.commands` that define
 ``register(subparsers)``; the module adds its parser(s) and sets ``func`` to a handler
 ``handler(args) -> int``. Handlers import heavy libraries lazily so ``--help`` is fast.
 User errors (:class:`~panoptic_bench.errors.InputError`) become one line on stderr and
-exit status 2.
+exit status 2, as do a full disk and an unwritable output (``OSError`` ENOSPC / EACCES / EROFS).
+A closed stdout (output piped into ``head``) ends the command quietly (status 141, as SIGPIPE).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
 
 from panoptic_bench import __version__, commands
-from panoptic_bench.errors import InputError
+from panoptic_bench.errors import InputError, InputErrors
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,13 +44,45 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        if sys.stdout is not None:
+            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return status
     except InputError as exc:
-        print(f"panoptic-bench: error: {exc}", file=sys.stderr)
-        return 2
+        text = str(exc) if isinstance(exc, InputErrors) else " ".join(str(exc).split())
+        return _fail(f"panoptic-bench: error: {text}", 2)
+    except BrokenPipeError:
+        _silence_stdout()
+        return 141
+    except OSError as exc:
+        if exc.errno not in USER_OS_ERRORS:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        return _fail(f"panoptic-bench: error: {where}{exc.strerror}", 2)
     except KeyboardInterrupt:
-        print("panoptic-bench: interrupted", file=sys.stderr)
-        return 130
+        return _fail("panoptic-bench: interrupted", 130)
+
+
+#: OSError numbers caused by the environment, not by a bug: full disk, quota, permissions.
+USER_OS_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM, errno.EROFS)
+
+
+def _fail(message: str, status: int) -> int:
+    """Print ``message`` on stderr (if there is one) and return ``status``."""
+    try:
+        print(message, file=sys.stderr)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return status
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush cannot fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
 
 
 if __name__ == "__main__":  # pragma: no cover
