@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``box-merge``."""
@@ -21,8 +23,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     kitti.add_argument("--boxes", required=True, help="root of the boxes files")
     kitti.add_argument("--mode", choices=["devkit", "paper"], default="paper", help="merge rule")
-    kitti.add_argument("--sequences", nargs="+", help="explicit sequences, e.g. 08")
+    ca.add_scan_selection(kitti)
     kitti.add_argument("--output", required=True, help="prediction root to write")
+    ca.add_overwrite(kitti, "the --output tree")
     kitti.set_defaults(func=merge_kitti)
     sim = sub.add_parser(
         "simulate-boxes",
@@ -30,24 +33,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     sim.add_argument("--dataset", required=True, help="labelled SemanticKITTI root")
     sim.add_argument("--output", required=True, help="boxes root to write")
-    sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    sim.add_argument("--sequences", nargs="+", help="explicit sequences, e.g. 08")
-    sim.add_argument("--miss-rate", type=float, default=0.1, help="probability a GT box is missed")
-    sim.add_argument("--fp-rate", type=float, default=0.2, help="false positives per GT box")
-    sim.add_argument("--position-sigma", type=float, default=0.2, help="centre jitter (m)")
-    sim.add_argument("--size-sigma", type=float, default=0.1, help="relative size jitter")
-    sim.add_argument("--yaw-sigma", type=float, default=0.05, help="yaw jitter (rad)")
+    ca.add_scan_selection(sim)
+    _add_noise_args(sim)
+    ca.add_overwrite(sim, "the --output tree")
     sim.set_defaults(func=simulate_boxes)
     _register_nuscenes(sub)
 
 
 def _add_noise_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--miss-rate", type=float, default=0.1, help="probability a GT box is missed")
-    p.add_argument("--fp-rate", type=float, default=0.2, help="false positives per GT box")
-    p.add_argument("--position-sigma", type=float, default=0.2, help="centre jitter (m)")
-    p.add_argument("--size-sigma", type=float, default=0.1, help="relative size jitter")
-    p.add_argument("--yaw-sigma", type=float, default=0.05, help="yaw jitter (rad)")
+    p.add_argument("--seed", type=ca.seed, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--miss-rate", type=ca.probability, default=0.1, help="probability a GT box is missed"
+    )
+    p.add_argument(
+        "--fp-rate", type=ca.float_range(0.0, 100.0), default=0.2, help="false positives per GT box"
+    )
+    p.add_argument(
+        "--position-sigma", type=ca.float_range(0.0, 100.0), default=0.2, help="centre jitter (m)"
+    )
+    p.add_argument(
+        "--size-sigma", type=ca.float_range(0.0, 10.0), default=0.1, help="relative size jitter"
+    )
+    p.add_argument(
+        "--yaw-sigma", type=ca.float_range(0.0, 10.0), default=0.05, help="yaw jitter (rad)"
+    )
 
 
 def _add_nuscenes_args(p: argparse.ArgumentParser) -> None:
@@ -78,6 +87,7 @@ def _register_nuscenes(sub: argparse._SubParsersAction) -> None:
     nus.add_argument("--boxes", required=True, help="detection or tracking submission JSON")
     nus.add_argument("--mode", choices=["devkit", "paper"], default="paper", help="merge rule")
     nus.add_argument("--output", required=True, help="prediction root to write")
+    ca.add_overwrite(nus, "the --output tree")
     nus.set_defaults(func=merge_nuscenes)
     sim = sub.add_parser(
         "simulate-nuscenes",
@@ -88,34 +98,39 @@ def _register_nuscenes(sub: argparse._SubParsersAction) -> None:
     _add_nuscenes_args(sim)
     _add_noise_args(sim)
     sim.add_argument("--output", required=True, help="submission JSON to write")
+    ca.add_overwrite(sim, "the --output file")
     sim.set_defaults(func=simulate_nuscenes)
 
 
 def merge_kitti(args: argparse.Namespace) -> int:
     """Handler of ``box-merge semantickitti``."""
     from panoptic_bench.baselines.box_merge import MergeMode, box_merge_semantickitti
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import output_tree
 
-    out = ensure_output_dir(args.output, inputs=(args.dataset, args.semantic, args.boxes))
-    n = box_merge_semantickitti(
-        args.dataset, args.semantic, args.boxes, out, MergeMode(args.mode), sequences=args.sequences
-    )
-    print(f"box-merge ({args.mode}): wrote {n} predictions under {out}/sequences")
+    seqs = ca.selected_sequences(args.split, args.sequences)
+    inputs = (args.dataset, args.semantic, args.boxes)
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        n = box_merge_semantickitti(
+            args.dataset, args.semantic, args.boxes, tmp, MergeMode(args.mode), sequences=seqs
+        )
+    print(f"box-merge ({args.mode}): wrote {n} predictions under {args.output}/sequences")
     return 0
 
 
 def simulate_boxes(args: argparse.Namespace) -> int:
     """Handler of ``box-merge simulate-boxes``."""
     from panoptic_bench.baselines.box_merge import DetectorNoise, simulate_boxes_semantickitti
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import output_tree
 
     noise = DetectorNoise(
         args.position_sigma, args.size_sigma, args.yaw_sigma, args.miss_rate, args.fp_rate
     )
-    out = ensure_output_dir(args.output, inputs=(args.dataset,))
-    n = simulate_boxes_semantickitti(
-        args.dataset, out, noise=noise, seed=args.seed, sequences=args.sequences
-    )
+    seqs = ca.selected_sequences(args.split, args.sequences)
+    with output_tree(args.output, overwrite=args.overwrite, inputs=(args.dataset,)) as tmp:
+        n = simulate_boxes_semantickitti(
+            args.dataset, tmp, noise=noise, seed=args.seed, sequences=seqs
+        )
+    out = args.output
     print(f"wrote {n} simulated-detector boxes files under {out}/sequences (not a detector result)")
     return 0
 
@@ -124,13 +139,15 @@ def merge_nuscenes(args: argparse.Namespace) -> int:
     """Handler of ``box-merge nuscenes``."""
     from panoptic_bench.baselines.box_merge import MergeMode
     from panoptic_bench.baselines.box_merge_nuscenes import BoxTask, box_merge_nuscenes
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import output_tree
 
-    out = ensure_output_dir(args.output, inputs=(args.dataset, args.semantic))
-    n = box_merge_nuscenes(
-        args.dataset, args.version, args.eval_set, args.semantic, args.boxes, out,
-        MergeMode(args.mode), task=BoxTask(args.task),
-    )  # fmt: skip
+    inputs = (args.dataset, args.semantic, args.boxes)
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        n = box_merge_nuscenes(
+            args.dataset, args.version, args.eval_set, args.semantic, args.boxes, tmp,
+            MergeMode(args.mode), task=BoxTask(args.task),
+        )  # fmt: skip
+    out = args.output
     print(f"box-merge ({args.mode}): wrote {n} predictions under {out}/panoptic/{args.eval_set}")
     return 0
 
@@ -144,16 +161,13 @@ def simulate_nuscenes(args: argparse.Namespace) -> int:
     from panoptic_bench.baselines.simulated_detector_nuscenes import (
         write_simulated_submission_nuscenes,
     )
-    from panoptic_bench.errors import InputError
+    from panoptic_bench.io import check_output_file
 
     noise = DetectorNoise(
         args.position_sigma, args.size_sigma, args.yaw_sigma, args.miss_rate, args.fp_rate
     )
+    check_output_file(args.output, overwrite=args.overwrite, inputs=(args.dataset,))
     out = Path(args.output).resolve()
-    if out.is_dir():
-        raise InputError("--output must be a JSON file path, not a directory", out)
-    if out.is_relative_to(Path(args.dataset).resolve()):
-        raise InputError("refusing to write inside the input dataroot", out)
     n = write_simulated_submission_nuscenes(
         args.dataset, args.version, args.eval_set, out, noise=noise, seed=args.seed,
         task=BoxTask(args.task),

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def _add_method_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
@@ -11,22 +13,32 @@ def _add_method_args(p: argparse.ArgumentParser) -> None:
         help="clustering of the regressed centres of things points",
     )  # fmt: skip
     g = p.add_argument_group("method parameters (defaults: paper presets where they exist)")
-    g.add_argument("--radius", type=float, help="bfs: linking radius in m (default 1.2)")
-    g.add_argument("--eps", type=float, help="dbscan: neighbourhood radius in m (default 0.5)")
-    g.add_argument("--min-samples", type=int, help="dbscan/hdbscan: core-point neighbours")
-    g.add_argument("--min-cluster-size", type=int, help="hdbscan: smallest cluster (default 5)")
-    g.add_argument("--cluster-selection-epsilon", type=float, help="hdbscan: merge distance in m")
+    g.add_argument("--radius", type=ca.metres, help="bfs: linking radius in m (default 1.2)")
+    g.add_argument("--eps", type=ca.metres, help="dbscan: neighbourhood radius in m (default 0.5)")
     g.add_argument(
-        "--bandwidth", type=float, help="meanshift: flat-kernel radius in m (default 1.2)"
+        "--min-samples", type=ca.positive_int, help="dbscan/hdbscan: core-point neighbours"
+    )
+    g.add_argument(
+        "--min-cluster-size", type=ca.int_range(2), help="hdbscan: smallest cluster (default 5)"
+    )
+    g.add_argument(
+        "--cluster-selection-epsilon",
+        type=ca.float_range(0.0, 1e4),
+        help="hdbscan: merge distance in m",
+    )
+    g.add_argument(
+        "--bandwidth", type=ca.metres, help="meanshift: flat-kernel radius in m (default 1.2)"
     )
     g.add_argument("--bin-seeding", action="store_true", help="meanshift: seed from a grid")
-    g.add_argument("--max-iter", type=int, help="meanshift: maximum shifts per seed (default 300)")
+    g.add_argument(
+        "--max-iter", type=ca.positive_int, help="meanshift: maximum shifts per seed (default 300)"
+    )
     g.add_argument(
         "--noise", choices=["singleton", "nearest"],
         help="dbscan/hdbscan noise points: own one-point cluster (default) or nearest cluster",
     )  # fmt: skip
     p.add_argument(
-        "--min-points", type=int,
+        "--min-points", type=ca.nonneg_int,
         help="drop instances with fewer points (default: 50 semantickitti, 5 nuscenes)",
     )  # fmt: skip
     p.add_argument(
@@ -34,7 +46,8 @@ def _add_method_args(p: argparse.ArgumentParser) -> None:
         help="dropped instances: keep class with instance 0 (default) or become unlabeled",
     )  # fmt: skip
     p.add_argument("--no-fusion", action="store_true", help="skip consensus-driven fusion")
-    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--workers", type=ca.workers, default=1, help="worker processes (default 1)")
+    ca.add_overwrite(p, "the --output tree")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -53,8 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--dataset", required=True, help="SemanticKITTI root (sequences/XX/velodyne)"
     )
     kitti.add_argument("--centers", required=True, help="root of the regressed-centre .npz files")
-    kitti.add_argument("--split", choices=["train", "valid", "test"], help="scan selection")
-    kitti.add_argument("--sequences", nargs="+", help="explicit sequences, e.g. 08")
+    ca.add_scan_selection(kitti)
     kitti.add_argument("--output", required=True, help="prediction root to write")
     _add_method_args(kitti)
     kitti.set_defaults(func=cluster_kitti)
@@ -112,15 +124,16 @@ def cluster_kitti(args: argparse.Namespace) -> int:
     """Handler of ``cluster semantickitti``."""
     from panoptic_bench.baselines.clustering import MIN_POINTS_SEMANTICKITTI
     from panoptic_bench.baselines.run import cluster_semantickitti
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import output_tree
 
     opts = _options(args, MIN_POINTS_SEMANTICKITTI)
-    out = ensure_output_dir(args.output, inputs=(args.dataset, args.centers))
-    n = cluster_semantickitti(
-        args.dataset, args.centers, out, opts, split=args.split, sequences=args.sequences,
-        workers=args.workers,
-    )  # fmt: skip
-    print(f"{opts.clusterer!r}: wrote {n} predictions under {out}/sequences")
+    inputs = (args.dataset, args.centers)
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        n = cluster_semantickitti(
+            args.dataset, args.centers, tmp, opts, split=args.split, sequences=args.sequences,
+            workers=args.workers,
+        )  # fmt: skip
+    print(f"{opts.clusterer!r}: wrote {n} predictions under {args.output}/sequences")
     return 0
 
 
@@ -128,12 +141,14 @@ def cluster_nus(args: argparse.Namespace) -> int:
     """Handler of ``cluster nuscenes``."""
     from panoptic_bench.baselines.clustering import MIN_POINTS_NUSCENES
     from panoptic_bench.baselines.run import cluster_nuscenes
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import output_tree
 
     opts = _options(args, MIN_POINTS_NUSCENES)
-    out = ensure_output_dir(args.output, inputs=(args.dataset, args.centers))
-    n = cluster_nuscenes(
-        args.dataset, args.version, args.eval_set, args.centers, out, opts, workers=args.workers
-    )
-    print(f"{opts.clusterer!r}: wrote {n} predictions under {out}/panoptic/{args.eval_set}")
+    inputs = (args.dataset, args.centers)
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        n = cluster_nuscenes(
+            args.dataset, args.version, args.eval_set, args.centers, tmp, opts,
+            workers=args.workers,
+        )  # fmt: skip
+    print(f"{opts.clusterer!r}: wrote {n} predictions under {args.output}/panoptic/{args.eval_set}")
     return 0
