@@ -4,12 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-
-def _sequences(text: str) -> list[str]:
-    seqs = [s.strip() for s in text.split(",") if s.strip()]
-    if not seqs:
-        raise argparse.ArgumentTypeError(f"expected sequences like 00,01, got {text!r}")
-    return seqs
+from panoptic_bench import cli_args as ca
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -30,25 +25,37 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory (runs/, report/)")
     p.add_argument(
         "--train-sequences",
-        type=_sequences,
+        type=ca.parse_sequences,
         default=None,
         help="sequences the DS variants train on (default: the checkpoint's training sequences)",
     )
     p.add_argument(
         "--val-sequences",
-        type=_sequences,
+        type=ca.parse_sequences,
         default=None,
         help="scored sequences (default: the checkpoint's validation sequences)",
     )
-    p.add_argument("--steps", type=int, default=300, help="Adam steps per variant (default 300)")
     p.add_argument(
-        "--max-train-scans", type=int, default=0, help="evenly spaced training subset (0 = all)"
+        "--steps", type=ca.nonneg_int, default=300, help="Adam steps per variant (default 300)"
     )
     p.add_argument(
-        "--max-val-scans", type=int, default=0, help="evenly spaced validation subset (0 = all)"
+        "--max-train-scans",
+        type=ca.nonneg_int,
+        default=0,
+        help="evenly spaced training subset (0 = all)",
     )
-    p.add_argument("--lr", type=float, help="Adam learning rate (default: the config's)")
-    p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    p.add_argument(
+        "--max-val-scans",
+        type=ca.nonneg_int,
+        default=0,
+        help="evenly spaced validation subset (0 = all)",
+    )
+    p.add_argument(
+        "--lr",
+        type=ca.float_range(0.0, 10.0, lo_open=True),
+        help="Adam learning rate (default: the config's)",
+    )
+    p.add_argument("--seed", type=ca.seed, default=0, help="training seed (default 0)")
     p.add_argument("--data-label", help="name of the data in run.json / tables (default: --data)")
     p.add_argument(
         "--quick",
@@ -56,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fewer variants (default, one other bandwidth set, 1 iteration, direct regression)",
     )
     p.add_argument("--no-report", action="store_true", help="only the run directories")
-    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=handler)
 
@@ -76,6 +83,9 @@ def handler(args: argparse.Namespace) -> int:
             raise InputError(f"--{name.replace('_', '-')} must be >= 0")
     if args.lr is not None and not args.lr > 0:
         raise InputError(f"--lr must be > 0, got {args.lr}")
+    from panoptic_bench.io import check_output_location
+
+    check_output_location(args.out, (args.data,))  # never write into the dataset
     if args.threads:
         torch.set_num_threads(args.threads)
     summary = run_ablation(

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add ``semantickitti-4d`` to the sub-commands of ``eval``."""
@@ -22,7 +24,7 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
     add_dataset_arguments(p)
     p.add_argument(
         "--min-inst-points",
-        type=int,
+        type=ca.nonneg_int,
         default=50,
         help="ground-truth segments need more than (corrected: at least) this many points "
         "in a frame to join their tube (default 50)",
@@ -33,14 +35,16 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
         default="reference",
         help="rule set (default reference = the benchmark's code)",
     )
-    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--workers", type=ca.workers, default=1, help="worker processes (default 1)")
     p.add_argument(
         "--by-range",
+        type=ca.range_edges,
         default=None,
         metavar="EDGES",
         help="also score per range bin, comma-separated edges in metres, e.g. 0,10,20,40,80",
     )
     p.add_argument("--output", required=True, help="output directory (not inside the inputs)")
+    ca.add_overwrite(p, "the --output directory")
     p.set_defaults(func=run)
     return p
 
@@ -62,12 +66,11 @@ def _table(scores: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``eval semantickitti-4d``."""
-    from panoptic_bench.evaluation.output import check_output_location
     from panoptic_bench.evaluation.semantickitti_4d import evaluate_semantickitti_4d
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import check_output_dir, output_tree
 
     inputs = (args.dataset, args.predictions)
-    check_output_location(args.output, inputs)
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
     ev = evaluate_semantickitti_4d(
         args.dataset,
         args.predictions,
@@ -78,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         by_range=args.by_range,
     )
-    scores = ev.write(ensure_output_dir(args.output, inputs=inputs))
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        scores = ev.write(tmp)
     print(f"{ev.n_scans} scans of sequences {', '.join(ev.sequences)}, {args.mode} rules (%):")
     print(_table(scores), end="")
     if scores["all"]["phantom_class_0"] and args.mode == "reference":

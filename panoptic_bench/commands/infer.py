@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 CLUSTERERS = ("meanshift", "bfs", "dbscan", "hdbscan")
 
 
@@ -21,16 +23,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint", required=True, help="checkpoint written by `train`")
     p.add_argument("--data", required=True, help="dataset root")
     p.add_argument(
-        "--split", required=True, help="split name (valid, val...) or sequences (08 or 00,01)"
+        "--split", help="split name (valid, val, mini_val...) or sequences (08 or 00,01)"
+    )
+    p.add_argument(
+        "--sequences",
+        nargs="+",
+        action=ca.SequencesAction,
+        metavar="SEQ",
+        help="SemanticKITTI sequences, e.g. 08 or 00,01 (instead of --split)",
     )
     p.add_argument("--out", required=True, help="prediction root")
+    ca.add_overwrite(p, "the --out tree")
     p.add_argument("--clusterer", choices=CLUSTERERS, help="heuristic clustering of the centres")
-    p.add_argument("--bandwidth", type=float, help="mean-shift bandwidth / BFS radius / eps (m)")
+    p.add_argument(
+        "--bandwidth", type=ca.metres, help="mean-shift bandwidth / BFS radius / eps (m)"
+    )
     p.add_argument("--no-fusion", action="store_true", help="skip consensus fusion")
     p.add_argument("--save-features", action="store_true", help="store features in the .npz")
-    p.add_argument("--max-scans", type=int, default=0, help="only the first N scans (0 = all)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda")
-    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument(
+        "--max-scans", type=ca.nonneg_int, default=0, help="only the first N scans (0 = all)"
+    )
+    p.add_argument("--device", type=ca.device, default="cpu", help="cpu or cuda")
+    p.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=handler)
 
@@ -44,27 +58,48 @@ def handler(args: argparse.Namespace) -> int:
     from panoptic_bench.dsnet.config import Clusterer
     from panoptic_bench.dsnet.inference.run import run_inference
     from panoptic_bench.errors import InputError
+    from panoptic_bench.io import output_tree
 
     if args.bandwidth is not None and not args.bandwidth > 0:
         raise InputError(f"--bandwidth must be > 0, got {args.bandwidth}")
+    split = _split(args)
     if args.threads:
         torch.set_num_threads(args.threads)
-    summary = run_inference(
-        args.checkpoint,
-        args.data,
-        args.split,
-        args.out,
-        clusterer=Clusterer(args.clusterer) if args.clusterer else None,
-        bandwidth=args.bandwidth,
-        fusion=False if args.no_fusion else None,
-        save_features=args.save_features,
-        max_samples=args.max_scans,
-        device=args.device,
-        progress=not args.no_progress,
-        command=shlex.join(["panoptic-bench", *sys.argv[1:]]),
-    )
+    with output_tree(args.out, overwrite=args.overwrite, inputs=(args.data,)) as tmp:
+        summary = run_inference(
+            args.checkpoint,
+            args.data,
+            split,
+            tmp,
+            clusterer=Clusterer(args.clusterer) if args.clusterer else None,
+            bandwidth=args.bandwidth,
+            fusion=False if args.no_fusion else None,
+            save_features=args.save_features,
+            max_samples=args.max_scans,
+            device=args.device,
+            progress=not args.no_progress,
+            command=shlex.join(["panoptic-bench", *sys.argv[1:]]),
+        )
     print(
         f"{summary.method}: {summary.num_scans} scans, {summary.ms_per_frame:.1f} ms/frame "
-        f"-> {summary.out}"
+        f"-> {args.out}"
     )
     return 0
+
+
+def _split(args: argparse.Namespace) -> str:
+    """The split string run_inference takes: a name, or comma-joined checked sequences."""
+    from panoptic_bench.errors import InputError
+
+    if args.sequences and args.split:
+        raise InputError("give --split or --sequences, not both")
+    if args.sequences:
+        return ",".join(args.sequences)
+    if not args.split:
+        raise InputError("give --split (e.g. valid, mini_val) or --sequences (e.g. 08)")
+    if all(part.strip().isascii() and part.strip().isdigit() for part in args.split.split(",")):
+        try:  # old spelling --split 07,08: the same checks as --sequences
+            return ",".join(ca.parse_sequences(args.split))
+        except argparse.ArgumentTypeError as exc:
+            raise InputError(f"--split: {exc}") from None
+    return args.split

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``nuscenes`` command group."""
@@ -20,15 +22,35 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     labels.add_argument("--dataroot", required=True, help="nuScenes dataroot with lidarseg")
     labels.add_argument("--version", required=True, help="e.g. v1.0-mini, v1.0-trainval")
-    labels.add_argument("--out-dir", required=True, help="output root (may be the dataroot itself)")
-    labels.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    labels.add_argument(
+        "--out-dir",
+        required=True,
+        help="output root: the dataroot itself or a directory outside it",
+    )
+    labels.add_argument(
+        "--workers", type=ca.workers, default=1, help="worker processes (default 1)"
+    )
+    ca.add_overwrite(labels, "existing panoptic/<version> labels")
     labels.set_defaults(func=make_labels)
 
 
 def make_labels(args: argparse.Namespace) -> int:
     """Handler of ``nuscenes make-labels``."""
-    from panoptic_bench.datasets.nuscenes_panoptic import make_panoptic_labels
+    from pathlib import Path
 
+    from panoptic_bench.datasets.nuscenes_panoptic import make_panoptic_labels
+    from panoptic_bench.errors import InputError
+
+    root, out = Path(args.dataroot).resolve(), Path(args.out_dir).resolve()
+    if root in out.parents:
+        raise InputError(
+            "--out-dir lies inside the dataroot; use the dataroot itself or a directory outside it",
+            args.out_dir,
+        )
+    labels = out / "panoptic" / args.version
+    existing = labels.is_dir() and any(labels.iterdir())
+    if not args.overwrite and (existing or (out / args.version / "panoptic.json").exists()):
+        raise InputError("panoptic labels exist already; pass --overwrite to replace them", labels)
     rows = make_panoptic_labels(args.dataroot, args.version, args.out_dir, workers=args.workers)
     print(f"wrote {len(rows)} panoptic label files to {args.out_dir}/panoptic/{args.version}")
     return 0

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
 
-def _sequences(text: str) -> list[str]:
-    items = [s.strip() for s in text.split(",") if s.strip()]
-    if not items or not all(s.isdigit() for s in items):
-        raise argparse.ArgumentTypeError(f"expected sequence numbers like 08,09; got {text!r}")
-    return items
+#: ``08,09`` -> ``["08", "09"]`` (checked: numbers, each once); kept for modules importing it.
+_sequences = ca.parse_sequences
 
 
 def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,18 +18,8 @@ def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
         required=True,
         help="root holding sequences/XX/predictions/NNNNNN.label (raw ids, uint32)",
     )
-    p.add_argument(
-        "--split",
-        choices=["train", "valid", "test"],
-        default="valid",
-        help="sequences of this split (default: valid = 08)",
-    )
-    p.add_argument(
-        "--sequences",
-        type=_sequences,
-        default=None,
-        metavar="08,...",
-        help="comma-separated sequences; overrides --split",
+    ca.add_scan_selection(
+        p, split_default="valid", split_help="sequences of this split (default: valid = 08)"
     )
 
 
@@ -49,18 +37,20 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
     add_dataset_arguments(p)
     p.add_argument(
         "--min-inst-points",
-        type=int,
+        type=ca.nonneg_int,
         default=50,
         help="unmatched segments smaller than this count neither as FP nor FN (default 50)",
     )
-    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--workers", type=ca.workers, default=1, help="worker processes (default 1)")
     p.add_argument(
         "--by-range",
+        type=ca.range_edges,
         default=None,
         metavar="EDGES",
         help="also score per range bin, comma-separated edges in metres, e.g. 0,10,20,30,40,50,80",
     )
     p.add_argument("--output", required=True, help="output directory (not inside the inputs)")
+    ca.add_overwrite(p, "the --output directory")
     p.set_defaults(func=run_eval)
     return p
 
@@ -82,17 +72,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--input", required=True, help="directory searched recursively for .label")
     p.add_argument("--output", required=True, help="output directory (not inside --input)")
     p.add_argument("--inverse", action="store_true", help="train ids -> raw ids")
+    ca.add_overwrite(p, "the --output tree")
     p.set_defaults(func=run_remap)
 
 
 def run_eval(args: argparse.Namespace) -> int:
     """Handler of ``eval semantickitti``."""
-    from panoptic_bench.evaluation.output import check_output_location, percent_table
+    from panoptic_bench.evaluation.output import percent_table
     from panoptic_bench.evaluation.semantickitti import evaluate_semantickitti
-    from panoptic_bench.io import ensure_output_dir
+    from panoptic_bench.io import check_output_dir, output_tree
 
     inputs = (args.dataset, args.predictions)
-    check_output_location(args.output, inputs)
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
     ev = evaluate_semantickitti(
         args.dataset,
         args.predictions,
@@ -102,7 +93,8 @@ def run_eval(args: argparse.Namespace) -> int:
         workers=args.workers,
         by_range=args.by_range,
     )
-    scores = ev.write(ensure_output_dir(args.output, inputs=inputs))
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        scores = ev.write(tmp)
     print(f"{ev.n_scans} scans of sequences {', '.join(ev.sequences)} (values in %):")
     print(percent_table(scores))
     print(f"results written to {args.output}")
@@ -112,8 +104,10 @@ def run_eval(args: argparse.Namespace) -> int:
 def run_remap(args: argparse.Namespace) -> int:
     """Handler of ``semantickitti remap``."""
     from panoptic_bench.evaluation.semantickitti_tools import remap_tree
+    from panoptic_bench.io import output_tree
 
-    n = remap_tree(args.input, args.output, inverse=args.inverse)
+    with output_tree(args.output, overwrite=args.overwrite, inputs=(args.input,)) as tmp:
+        n = remap_tree(args.input, tmp, inverse=args.inverse)
     print(
         f"{n} label files remapped {'train -> raw' if args.inverse else 'raw -> train'} ids "
         f"into {args.output}"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -22,10 +24,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--stage", default="all", choices=("semantic", "offset", "ds", "all"), help="default all"
     )
     p.add_argument("--resume", action="store_true", help="continue from the stage checkpoint")
-    p.add_argument("--epochs", type=int, help="epochs per stage (overrides the config)")
+    p.add_argument("--epochs", type=ca.nonneg_int, help="epochs per stage (overrides the config)")
     p.add_argument("--init", help="checkpoint to start the first stage from")
-    p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
-    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--device", type=ca.device, help="cpu or cuda (default: cuda when available)")
+    p.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
     p.add_argument("--notes", default="", help="free text stored in RUN_DIR/run.json")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=handler)
@@ -40,6 +42,9 @@ def handler(args: argparse.Namespace) -> int:
 
     if args.epochs is not None and args.epochs < 0:
         raise InputError(f"--epochs must be >= 0, got {args.epochs}")
+    from panoptic_bench.io import check_output_location
+
+    check_output_location(args.out, (args.data,))  # never write into the dataset
     if args.threads:
         torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
