@@ -122,7 +122,7 @@ def check_output_location(output: str | Path, inputs: tuple | list = ()) -> None
         src = Path(src).resolve()
         if out == src or src in out.parents:
             raise InputError(
-                f"output directory lies inside the input tree {src}; choose another --output",
+                f"output lies inside the input tree {src}; choose another output directory",
                 output,
             )
     if out.exists() and not out.is_dir():
