@@ -21,6 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     exp.add_argument("checkpoint")
     exp.add_argument("--out", required=True, help="destination .pt")
     exp.add_argument("--half", action="store_true", help="store weights as float16")
+    exp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     exp.set_defaults(func=export_handler)
 
 
@@ -51,7 +52,9 @@ def export_handler(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from panoptic_bench.dsnet.checkpoint import export_checkpoint
+    from panoptic_bench.io import check_output_file
 
+    check_output_file(args.out, overwrite=args.overwrite, inputs=(args.checkpoint,))
     out = export_checkpoint(args.checkpoint, args.out, half=args.half)
     print(f"{out} ({Path(out).stat().st_size / 1e6:.1f} MB)")
     return 0

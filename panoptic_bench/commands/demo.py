@@ -78,6 +78,10 @@ def handler(args: argparse.Namespace) -> int:
     if args.real_scans and args.quick:
         raise InputError("--quick applies to the synthetic demo, not to --real-scans")
     out = args.out or ("reports/real-scans" if args.real_scans else "reports/demo")
+    if args.real_scans:  # the scans are only read: never write the report into them
+        from panoptic_bench.io import check_output_location
+
+        check_output_location(out, (args.real_scans,))
     common = {
         "workers": args.workers,
         "keep_work": not args.report_only,

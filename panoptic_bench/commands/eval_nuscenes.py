@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add ``nuscenes`` to the sub-commands of ``eval``."""
@@ -27,18 +29,20 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
     p.add_argument("--eval-set", required=True, help="devkit split: mini_val, val, test, ...")
     p.add_argument(
         "--min-inst-points",
-        type=int,
+        type=ca.nonneg_int,
         default=15,
         help="unmatched segments smaller than this are not counted (default 15, as the devkit)",
     )
     p.add_argument(
         "--by-range",
+        type=ca.range_edges,
         default=None,
         metavar="EDGES",
         help="also score per range bin, comma-separated edges in metres, e.g. 0,10,20,30,50",
     )
-    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--workers", type=ca.workers, default=1, help="worker processes (default 1)")
     p.add_argument("--output", required=True, help="output directory")
+    ca.add_overwrite(p, "the --output directory")
     p.set_defaults(func=run)
     return p
 
@@ -56,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
     """Handler of ``eval nuscenes``."""
     from panoptic_bench.errors import InputError
     from panoptic_bench.evaluation.nuscenes import evaluate_nuscenes, write_nuscenes_result
-    from panoptic_bench.evaluation.output import check_output_location, percent_table
+    from panoptic_bench.evaluation.output import percent_table
+    from panoptic_bench.io import check_output_dir, output_tree
     from panoptic_bench.metrics.by_range import parse_edges
 
     edges = None
@@ -66,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise InputError(f"--by-range: {exc}") from None
     inputs = (args.dataroot, f"{args.result_path}/panoptic")
-    check_output_location(args.output, inputs)
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
     evaluation = evaluate_nuscenes(
         args.dataroot,
         args.version,
@@ -76,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
         by_range=edges,
         workers=args.workers,
     )
-    scores = write_nuscenes_result(evaluation, args.output, inputs=inputs)
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        scores = write_nuscenes_result(evaluation, tmp, inputs=inputs)
     print(percent_table(scores), end="")
     print(f"{evaluation.n_samples} samples of {args.eval_set}; results written to {args.output}")
     return 0
