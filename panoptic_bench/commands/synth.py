@@ -28,6 +28,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     kitti.add_argument("--seed", type=int, default=0, help="global seed (default 0)")
     kitti.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+    kitti.add_argument(
+        "--profile",
+        default="classic",
+        help="world/sensor profile: classic (default, the original world), realistic, or a "
+        "YAML file of overrides (e.g. configs/synth_realistic.yaml)",
+    )
     kitti.set_defaults(func=semantickitti)
 
     nus = sub.add_parser(
@@ -44,42 +50,73 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     nus.add_argument("--samples", type=int, default=10, help="keyframes per scene (default 10)")
     nus.add_argument("--seed", type=int, default=0, help="global seed (default 0)")
     nus.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+    nus.add_argument(
+        "--profile",
+        default="classic",
+        help="world/sensor profile: classic (default, the original world), realistic, or a "
+        "YAML file of overrides (e.g. configs/synth_realistic.yaml)",
+    )
     nus.set_defaults(func=nuscenes)
 
     stats = sub.add_parser(
         "stats",
         help="realism statistics: synthetic vs real SemanticKITTI scans (table + figure)",
         description=(
-            "Compare points per scan, class frequencies, thing instances per scan, points per "
-            "car vs range (log-log slope over 10-50 m) and the range histogram. Writes "
-            "realism.md, realism.csv and realism.png under --out."
+            "Compare real and synthetic scans side by side: points per scan, class "
+            "frequencies, thing instances, points per car vs range, range histogram, "
+            "remission (zeros, darkness, per class and range), road plane height, sensor "
+            "pitch/roll, ground roughness, kerb and terrain heights, street layout, ego hole, "
+            "points per ring and unlabelled clutter. Writes realism.md, realism.csv, "
+            "realism.json, realism.png and realism_sensor.png under --out. Without "
+            "--synthetic, --synthetic-scans scans of --profile are simulated in memory."
         ),
     )
     stats.add_argument("--real", required=True, help="real SemanticKITTI root (labelled scans)")
-    stats.add_argument("--synthetic", required=True, help="synthetic SemanticKITTI root")
+    stats.add_argument(
+        "--synthetic", default=None, help="synthetic SemanticKITTI root (default: simulate)"
+    )
+    stats.add_argument(
+        "--synthetic-scans",
+        type=int,
+        default=12,
+        help="scans to simulate without --synthetic, one street each (default 12)",
+    )
+    stats.add_argument("--seed", type=int, default=0, help="seed of the simulated scans")
     stats.add_argument("--out", required=True, help="output directory")
     stats.add_argument(
         "--max-scans", type=int, default=200, help="at most this many scans per tree (default 200)"
     )
     stats.add_argument("--figure", default=None, help="also write the PNG figure to this path")
     stats.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+    stats.add_argument(
+        "--profile",
+        default="classic",
+        help="world/sensor profile: classic (default, the original world), realistic, or a "
+        "YAML file of overrides (e.g. configs/synth_realistic.yaml)",
+    )
     stats.set_defaults(func=stats_handler)
 
 
 def semantickitti(args: argparse.Namespace) -> int:
     """Handler of ``synth semantickitti``."""
+    from panoptic_bench.datasets.synthetic.profile import load_profile
     from panoptic_bench.datasets.synthetic.writers import generate_semantickitti, parse_sequences
 
     seqs = parse_sequences(args.sequences)
-    root = generate_semantickitti(args.out, seqs, seed=args.seed, overwrite=args.overwrite)
+    profile = load_profile(args.profile)
+    root = generate_semantickitti(
+        args.out, seqs, seed=args.seed, overwrite=args.overwrite, profile=profile
+    )
     print(f"wrote {sum(seqs.values())} scans in {len(seqs)} sequence(s) to {root}")
     return 0
 
 
 def nuscenes(args: argparse.Namespace) -> int:
     """Handler of ``synth nuscenes``."""
+    from panoptic_bench.datasets.synthetic.profile import load_profile
     from panoptic_bench.datasets.synthetic.writers import generate_nuscenes
 
+    profile = load_profile(args.profile)
     root = generate_nuscenes(
         args.out,
         args.version,
@@ -87,6 +124,7 @@ def nuscenes(args: argparse.Namespace) -> int:
         args.samples,
         seed=args.seed,
         overwrite=args.overwrite,
+        profile=profile,
     )
     print(f"wrote {args.scenes} scene(s) x {args.samples} sample(s) of {args.version} to {root}")
     return 0
@@ -94,6 +132,7 @@ def nuscenes(args: argparse.Namespace) -> int:
 
 def stats_handler(args: argparse.Namespace) -> int:
     """Handler of ``synth stats``."""
+    from panoptic_bench.datasets.synthetic.profile import load_profile
     from panoptic_bench.datasets.synthetic.stats import compare
 
     real, synth = compare(
@@ -103,6 +142,9 @@ def stats_handler(args: argparse.Namespace) -> int:
         max_scans=args.max_scans,
         figure=args.figure,
         overwrite=args.overwrite,
+        synthetic_scans=args.synthetic_scans,
+        seed=args.seed,
+        profile=load_profile(args.profile),
     )
     print(
         f"car points vs range log-log slope (10-50 m): real {real.slope:.2f}, "

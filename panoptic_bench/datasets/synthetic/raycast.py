@@ -59,9 +59,12 @@ def ray_directions(elevation: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
 
 
 def _windows(
-    prims: Primitives, elevation: np.ndarray, n_col: int, max_range: float
+    prims: Primitives, elevation: np.ndarray, n_col: int, max_range: float, margin: float = 0.0
 ) -> tuple[np.ndarray, ...]:
-    """Angular window of each primitive: first column, column count, first beam, beam count."""
+    """Angular window of each primitive: first column, column count, first beam, beam count.
+
+    ``margin`` (radians) widens every window on all sides (rays of a tilted sensor).
+    """
     cx, cy = prims.center[:, 0], prims.center[:, 1]
     h = prims.half
     r_xy = np.where(
@@ -73,6 +76,8 @@ def _windows(
     zmin, zmax = prims.center[:, 2] - h[:, 2], prims.center[:, 2] + h[:, 2]
     inside = d_xy <= r_xy + 1e-3
     half_w = np.where(inside, np.pi, np.arcsin(np.clip(r_xy / np.maximum(d_xy, 1e-9), 0.0, 1.0)))
+    if margin:
+        half_w = np.minimum(half_w + margin, np.pi)
     az = np.arctan2(cy, cx)
     step = 2.0 * np.pi / n_col
     c0 = np.floor((az - half_w + np.pi) / step).astype(np.int64)
@@ -83,6 +88,8 @@ def _windows(
     d_max = d_xy + r_xy
     e_hi = np.arctan2(zmax, np.where(zmax > 0, d_min, d_max))
     e_lo = np.arctan2(zmin, np.where(zmin < 0, d_min, d_max))
+    if margin:
+        e_hi, e_lo = e_hi + margin, e_lo - margin
     b0 = np.searchsorted(elevation, e_lo - 1e-6, side="left")
     b1 = np.searchsorted(elevation, e_hi + 1e-6, side="right")
     n_b = b1 - b0
@@ -96,6 +103,7 @@ def cast(
     azimuth: np.ndarray,
     ground_z: float,
     max_range: float,
+    rotation: np.ndarray | None = None,
 ) -> RayHits:
     """Cast every ray of one sweep from the origin.
 
@@ -112,6 +120,9 @@ def cast(
         Height of the ground plane in the sensor frame (negative).
     max_range : float
         Returns beyond this range are dropped.
+    rotation : ndarray of shape (3, 3), float64, optional
+        Sensor-to-level rotation of a tilted sensor (small angles): the ray grid is defined in
+        the sensor frame and rotated by it; the windows are widened by the tilt angle.
 
     Returns
     -------
@@ -119,12 +130,17 @@ def cast(
     """
     n_b, n_c = elevation.size, azimuth.size
     dirs = ray_directions(elevation, azimuth)
+    margin = 0.0
+    if rotation is not None:
+        dirs = dirs @ np.asarray(rotation).T
+        tilt = float(np.arccos(np.clip(np.asarray(rotation)[2, 2], -1.0, 1.0)))
+        margin = tilt * 1.5 + 2.0 * np.pi / n_c
     t_best = np.full(n_b * n_c, np.inf)
     prim = np.full(n_b * n_c, MISS, dtype=np.int64)
     with np.errstate(divide="ignore"):
         t_ground = np.where(dirs[:, 2] < 0, ground_z / dirs[:, 2], np.inf)
     if len(prims):
-        c0, nc, b0, nb = _windows(prims, elevation, n_c, max_range)
+        c0, nc, b0, nb = _windows(prims, elevation, n_c, max_range, margin)
         keep = np.flatnonzero(nb * nc > 0)
         counts = (nb * nc)[keep]
         rows = np.repeat(keep, counts)

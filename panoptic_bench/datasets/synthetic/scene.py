@@ -14,13 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from panoptic_bench.datasets.synthetic.ground import GroundMap
+from panoptic_bench.datasets.synthetic.profile import WorldProfile, load_profile
 from panoptic_bench.datasets.synthetic.shapes import Primitives
 from panoptic_bench.datasets.synthetic.street import (
-    KERB,
     PARKING_WIDTH,
     StreetPlan,
     build_street,
     curb_at,
+    kerb_at,
 )
 from panoptic_bench.datasets.synthetic.things import Thing, build
 
@@ -93,7 +94,10 @@ class Scene:
 def _parked_rows(rng, plan: StreetPlan, things: list[Thing]) -> None:
     cats = ["car", "truck", "other-vehicle", "motorcycle", None]
     probs = [0.86, 0.04, 0.03, 0.03, 0.04]
+    fill = plan.profile.parked_fill
     for side, x0, x1 in plan.parking:
+        if fill < 1.0 and rng.random() >= fill:
+            continue
         yaw0 = 0.0 if side < 0 else np.pi
         x = x0 + rng.uniform(0.3, 3.0)
         while x < x1:
@@ -117,7 +121,7 @@ def _sidewalk(rng, plan: StreetPlan, x_range, things: list[Thing]) -> None:
     x0, x1 = x_range
     sw = plan.sidewalk_width
     for side in (-1, 1):
-        for _ in range(rng.poisson((x1 - x0) / 30.0)):
+        for _ in range(rng.poisson((x1 - x0) / plan.profile.ped_spacing)):
             x = rng.uniform(x0, x1)
             yc = curb_at(plan, side, x)
             size = int(rng.choice([1, 2, 3, 4, 5], p=[0.35, 0.3, 0.17, 0.12, 0.06]))
@@ -129,8 +133,9 @@ def _sidewalk(rng, plan: StreetPlan, x_range, things: list[Thing]) -> None:
                 dy = (k % 2) * rng.uniform(0.75, 0.85)
                 y = side * (yc + min(lateral + dy, sw - 0.35))
                 heading = (0.0 if v >= 0 else np.pi) if walking else rng.uniform(-np.pi, np.pi)
-                things.append(build(rng, "person", (x + dx, y, KERB), heading, (v, 0.0)))
-        for _ in range(rng.poisson((x1 - x0) / 60.0)):
+                kz = kerb_at(plan, side, x + dx)
+                things.append(build(rng, "person", (x + dx, y, kz), heading, (v, 0.0)))
+        for _ in range(rng.poisson((x1 - x0) / plan.profile.bike_spacing)):
             x = rng.uniform(x0, x1)
             y = side * (curb_at(plan, side, x) + sw - 0.35)
             cat = "bicycle" if rng.random() < 0.85 else "motorcycle"
@@ -139,7 +144,7 @@ def _sidewalk(rng, plan: StreetPlan, x_range, things: list[Thing]) -> None:
                     build(
                         rng,
                         cat,
-                        (x + k * rng.uniform(0.7, 0.9), y, KERB),
+                        (x + k * rng.uniform(0.7, 0.9), y, kerb_at(plan, side, x)),
                         np.pi / 2 + rng.normal(0, 0.05),
                     )
                 )
@@ -173,9 +178,9 @@ def _traffic(
                     rng, cat, (x, y + rng.normal(0, 0.1), 0.0), yaw, (direction * speed, 0.0)
                 )
                 things.append(thing)
-                x += thing.size[0] + rng.uniform(25.0, 90.0)
+                x += thing.size[0] + rng.uniform(*plan.profile.traffic_gap)
         y = side * (plan.road_half - 0.6)
-        for _ in range(rng.poisson((x1 - x0) / 70.0)):
+        for _ in range(rng.poisson((x1 - x0) / plan.profile.cyclist_spacing)):
             x = rng.uniform(x0, x1)
             moving = rng.random() < 0.75
             v = direction * rng.uniform(3.5, 6.5) if moving else 0.0
@@ -193,7 +198,10 @@ def _traffic(
 
 
 def generate_scene(
-    seed: int | tuple | list, duration: float, ego_speed: float | None = None
+    seed: int | tuple | list,
+    duration: float,
+    ego_speed: float | None = None,
+    profile: WorldProfile | str | None = None,
 ) -> Scene:
     """Generate a street scene long enough for ``duration`` seconds of ego driving.
 
@@ -205,6 +213,8 @@ def generate_scene(
         Seconds the ego vehicle drives; the street extends ``100 m`` beyond both ends.
     ego_speed : float, optional
         Ego speed in m/s (random in 5-10 m/s by default).
+    profile : WorldProfile or str, optional
+        World profile (``classic`` by default, bit-identical to the original world).
 
     Returns
     -------
@@ -213,7 +223,7 @@ def generate_scene(
     rng = np.random.default_rng(seed)
     speed = float(rng.uniform(5.0, 10.0)) if ego_speed is None else float(ego_speed)
     x_range = (-MARGIN, speed * duration + MARGIN)
-    static, ground, plan = build_street(rng, x_range)
+    static, ground, plan = build_street(rng, x_range, load_profile(profile))
     ego_lane = plan.lanes_per_side - 1
     things: list[Thing] = []
     _parked_rows(rng, plan, things)

@@ -3,7 +3,9 @@
 One sequence is one :class:`~panoptic_bench.datasets.synthetic.scene.Scene`, so instance ids
 (``thing index + 1``) are stable along the sequence and unique in it. Everything is a pure
 function of ``(seed, key)``: the scene from ``default_rng([seed, key])``, the sensor noise of
-frame ``i`` from ``default_rng([seed, key, i, 1])``.
+frame ``i`` from ``default_rng([seed, key, i, 1])``, and with a realistic sensor
+(:mod:`~panoptic_bench.datasets.synthetic.sensor_real`) its per-sequence pose and materials
+from ``default_rng([seed, key, 2])``.
 """
 
 from __future__ import annotations
@@ -13,8 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from panoptic_bench.datasets.synthetic.profile import WorldProfile, load_profile
 from panoptic_bench.datasets.synthetic.scene import Scene, generate_scene
 from panoptic_bench.datasets.synthetic.sensor import HDL64E, LidarModel, Sweep, sweep
+from panoptic_bench.datasets.synthetic.sensor_real import SensorState, sensor_state, sweep_realistic
 
 __all__ = ["Frame", "Sequence", "sensor_pose"]
 
@@ -42,9 +46,16 @@ class Frame:
 
 
 def sensor_pose(
-    scene: Scene, time: float, model: LidarModel, offset: tuple[float, float] = (0.0, 0.0)
+    scene: Scene,
+    time: float,
+    model: LidarModel,
+    offset: tuple[float, float] = (0.0, 0.0),
+    state: SensorState | None = None,
 ) -> np.ndarray:
-    """Sensor-to-world transform, ndarray of shape (4, 4), float64, at ``time``."""
+    """Sensor-to-world transform, ndarray of shape (4, 4), float64, at ``time``.
+
+    With a realistic ``state`` the sensor height and tilt of the sequence are included.
+    """
     x, y, yaw = scene.ego_pose(time)
     c, s = np.cos(yaw), np.sin(yaw)
     pose = np.eye(4)
@@ -54,6 +65,9 @@ def sensor_pose(
         y + s * offset[0] + c * offset[1],
         model.mount_height,
     ]
+    if state is not None:
+        pose[:3, :3] = pose[:3, :3] @ state.rotation
+        pose[2, 3] += state.height
     return pose
 
 
@@ -74,6 +88,8 @@ class Sequence:
         Sweeps per second (10 Hz by default).
     sensor_offset : tuple of float
         Sensor position in the ego frame (forward, left), metres.
+    profile : WorldProfile or str, optional
+        World and sensor profile (``classic`` by default: the original world, bit for bit).
 
     Examples
     --------
@@ -89,14 +105,22 @@ class Sequence:
         model: LidarModel = HDL64E,
         rate: float = 10.0,
         sensor_offset: tuple[float, float] = (0.0, 0.0),
+        profile: WorldProfile | str | None = None,
     ) -> None:
         if n_frames < 1:
             raise ValueError("n_frames must be at least 1")
         self.seed, self.key, self.n_frames = int(seed), int(key), int(n_frames)
         self.model, self.rate, self.sensor_offset = model, float(rate), sensor_offset
+        self.profile = load_profile(profile)
         self.scene = generate_scene(
-            [self.seed, self.key], duration=(n_frames - 1) / self.rate + 1.0
+            [self.seed, self.key],
+            duration=(n_frames - 1) / self.rate + 1.0,
+            profile=self.profile,
         )
+        self.state: SensorState | None = None
+        if self.profile.sensor_model:
+            rng = np.random.default_rng([self.seed, self.key, 2])
+            self.state = sensor_state(self.profile, self.scene, rng)
 
     def __len__(self) -> int:
         return self.n_frames
@@ -105,8 +129,14 @@ class Sequence:
         """Simulate frame ``index`` (independent of the other frames)."""
         time = index / self.rate
         rng = np.random.default_rng([self.seed, self.key, index, 1])
-        sw = sweep(self.scene, time, self.model, rng, self.sensor_offset)
-        return Frame(index, time, sensor_pose(self.scene, time, self.model, self.sensor_offset), sw)
+        if self.state is None:
+            sw = sweep(self.scene, time, self.model, rng, self.sensor_offset)
+        else:
+            sw = sweep_realistic(
+                self.scene, time, self.model, rng, self.sensor_offset, self.profile, self.state
+            )
+        pose = sensor_pose(self.scene, time, self.model, self.sensor_offset, self.state)
+        return Frame(index, time, pose, sw)
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(self.n_frames):

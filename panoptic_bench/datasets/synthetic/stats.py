@@ -11,14 +11,30 @@ HDL-64E scans (1/r^2 from the beam geometry, the rest from occlusion in rows of 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from panoptic_bench.io import atomic_open, ensure_output_dir, write_text
+from panoptic_bench.datasets.synthetic.realism import MEASURES, aggregate, scan_measures
+from panoptic_bench.errors import InputError
+from panoptic_bench.io import (
+    atomic_open,
+    check_output_location,
+    ensure_output_dir,
+    write_json,
+    write_text,
+)
 
-__all__ = ["DatasetStats", "ScanStats", "car_slope", "compare", "dataset_stats", "scan_stats"]
+__all__ = [
+    "DatasetStats",
+    "ScanStats",
+    "car_slope",
+    "compare",
+    "dataset_stats",
+    "scan_stats",
+    "simulated_stats",
+]
 
 RANGE_BINS = np.arange(0.0, 82.0, 2.0)
 CAR_TRAIN_ID = 1
@@ -95,7 +111,11 @@ def car_slope(
 
 @dataclass(frozen=True)
 class DatasetStats:
-    """Statistics of a set of scans (see :class:`ScanStats`); ``slope`` is :func:`car_slope`."""
+    """Statistics of a set of scans (see :class:`ScanStats`); ``slope`` is :func:`car_slope`.
+
+    ``measures`` and ``hists`` are the sensor/world realism measures of
+    :func:`~panoptic_bench.datasets.synthetic.realism.aggregate` (empty when not measured).
+    """
 
     n_scans: int
     points_per_scan: np.ndarray
@@ -105,10 +125,12 @@ class DatasetStats:
     car_range: np.ndarray
     range_hist: np.ndarray
     slope: float
+    measures: dict = field(default_factory=dict)
+    hists: dict = field(default_factory=dict)
 
     @classmethod
-    def from_scans(cls, scans: list[ScanStats]) -> DatasetStats:
-        """Aggregate per-scan statistics."""
+    def from_scans(cls, scans: list[ScanStats], realism: list | None = None) -> DatasetStats:
+        """Aggregate per-scan statistics (and per-scan realism measures, when given)."""
         counts = np.sum([s.class_counts for s in scans], axis=0)
         hist = np.sum([s.range_hist for s in scans], axis=0)
         cp = np.concatenate([s.car_points for s in scans])
@@ -122,6 +144,7 @@ class DatasetStats:
             cr,
             hist / max(hist.sum(), 1),
             car_slope(cr, cp),
+            *(aggregate(realism) if realism else ({}, {})),
         )
 
 
@@ -136,13 +159,54 @@ def dataset_stats(
     refs = list_scans(root)
     if max_scans is not None and len(refs) > max_scans:
         refs = [refs[i] for i in np.linspace(0, len(refs) - 1, max_scans).round().astype(int)]
-    scans = [
-        scan_stats(read_scan(ref.scan), read_labels(ref.label))
-        for ref in tqdm(
-            refs, desc=f"stats {Path(root).name}", unit="scan", disable=None if progress else True
-        )
-    ]
-    return DatasetStats.from_scans(scans)
+    scans, realism = [], []
+    for ref in tqdm(
+        refs, desc=f"stats {Path(root).name}", unit="scan", disable=None if progress else True
+    ):
+        points, labels = read_scan(ref.scan), read_labels(ref.label)
+        if labels.shape[0] != points.shape[0]:
+            raise InputError(f"{labels.shape[0]} labels for {points.shape[0]} points", ref.label)
+        scans.append(scan_stats(points, labels))
+        realism.append(scan_measures(points, labels))
+    return DatasetStats.from_scans(scans, realism)
+
+
+def simulated_stats(
+    n_scans: int = 12, seed: int = 0, profile=None, progress: bool = True
+) -> DatasetStats:
+    """Statistics of ``n_scans`` synthetic HDL-64E scans simulated in memory.
+
+    Scan ``k`` is frame 0 of sequence ``k`` of ``seed`` (one street per scan), so the scans
+    sample different streets and sensor poses.
+
+    Parameters
+    ----------
+    n_scans : int
+        Number of scans, 1-1000.
+    seed : int
+        Global seed.
+    profile : WorldProfile, optional
+        World/sensor profile (``classic`` by default).
+    progress : bool
+        Show a progress bar.
+    """
+    from tqdm import tqdm
+
+    from panoptic_bench.datasets.semantickitti import make_label
+    from panoptic_bench.datasets.synthetic.sequence import Sequence
+
+    if not 1 <= int(n_scans) <= 1000:
+        raise InputError(f"--synthetic-scans {n_scans} is out of range; use 1-1000")
+    scans, realism = [], []
+    for key in tqdm(
+        range(n_scans), desc="simulate", unit="scan", disable=None if progress else True
+    ):
+        sw = Sequence(seed, key, 1, profile=profile).frame(0).sweep
+        points = np.column_stack([sw.xyz, sw.remission])
+        labels = make_label(sw.label, sw.instance)
+        scans.append(scan_stats(points, labels))
+        realism.append(scan_measures(points, labels))
+    return DatasetStats.from_scans(scans, realism)
 
 
 def _rows(real: DatasetStats, synth: DatasetStats) -> list[tuple[str, float, float]]:
@@ -161,6 +225,9 @@ def _rows(real: DatasetStats, synth: DatasetStats) -> list[tuple[str, float, flo
         rows.append(
             (f"class frequency % {name}", 100 * real.class_freq[k], 100 * synth.class_freq[k])
         )
+    for key, (label, _) in MEASURES.items():
+        if key in real.measures and key in synth.measures:
+            rows.append((label, real.measures[key], synth.measures[key]))
     return rows
 
 
@@ -245,37 +312,62 @@ def _figure(real: DatasetStats, synth: DatasetStats, path: Path) -> None:
 
 def compare(
     real_root: str | Path,
-    synth_root: str | Path,
+    synth_root: str | Path | None,
     out: str | Path,
     *,
     max_scans: int | None = 200,
     figure: str | Path | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    synthetic_scans: int = 12,
+    seed: int = 0,
+    profile=None,
 ) -> tuple[DatasetStats, DatasetStats]:
-    """Compare real and synthetic scans; writes ``realism.md``, ``realism.csv``, ``realism.png``.
+    """Compare real and synthetic scans side by side.
+
+    Writes ``realism.md`` (table), ``realism.csv``, ``realism.json`` (every value and the
+    histograms), ``realism.png`` (counts, classes, cars vs range) and ``realism_sensor.png``
+    (remission, ground heights, rings, ego hole), all atomically and only once every input has
+    been read.
 
     Parameters
     ----------
-    real_root, synth_root : str or Path
-        SemanticKITTI trees (labelled scans).
+    real_root : str or Path
+        Real SemanticKITTI tree (labelled scans).
+    synth_root : str or Path or None
+        Synthetic SemanticKITTI tree; None simulates ``synthetic_scans`` scans of ``profile``
+        in memory (:func:`simulated_stats`).
     out : str or Path
         Output directory.
     max_scans : int or None
         At most this many scans per tree, evenly spread (None: all).
     figure : str or Path, optional
-        Also write the figure here (e.g. ``docs/synthetic_realism.png``).
+        Also write the first figure here (e.g. ``docs/synthetic_realism.png``).
     overwrite : bool
         Allow a non-empty ``out``.
+    synthetic_scans, seed, profile
+        The simulated scans when ``synth_root`` is None.
 
     Returns
     -------
     (DatasetStats, DatasetStats)
         Real and synthetic statistics.
     """
-    out = ensure_output_dir(out, overwrite=overwrite, inputs=(real_root, synth_root))
+    from panoptic_bench.datasets.synthetic.realism_figure import sensor_figure
+
+    if max_scans is not None and max_scans < 1:
+        raise InputError(f"--max-scans {max_scans} is out of range; use at least 1")
+    inputs = (real_root,) if synth_root is None else (real_root, synth_root)
+    check_output_location(out, inputs)
+    outp = Path(out)
+    if outp.is_dir() and not overwrite and any(outp.iterdir()):
+        raise InputError("output directory is not empty; pass --overwrite to replace it", out)
     real = dataset_stats(real_root, max_scans, progress)
-    synth = dataset_stats(synth_root, max_scans, progress)
+    if synth_root is None:
+        synth = simulated_stats(synthetic_scans, seed, profile, progress)
+    else:
+        synth = dataset_stats(synth_root, max_scans, progress)
+    out = ensure_output_dir(out, overwrite=overwrite, inputs=inputs)
     rows = _rows(real, synth)
     md = ["| statistic | real | synthetic |", "|---|---:|---:|"]
     md += [f"| {n} | {a:.4g} | {b:.4g} |" for n, a, b in rows]
@@ -284,7 +376,26 @@ def compare(
         out / "realism.csv",
         "statistic,real,synthetic\n" + "".join(f"{n},{a:.6g},{b:.6g}\n" for n, a, b in rows),
     )
+
+    def _json(s: DatasetStats) -> dict:
+        return {
+            "scans": s.n_scans,
+            "measures": {k: _finite(v) for k, v in s.measures.items()},
+            "hists": {k: [_finite(x) for x in np.asarray(v).tolist()] for k, v in s.hists.items()},
+        }
+
+    write_json(
+        out / "realism.json",
+        {"rows": [[n, _finite(a), _finite(b)] for n, a, b in rows], "real": _json(real),
+         "synthetic": _json(synth)},
+    )  # fmt: skip
     _figure(real, synth, out / "realism.png")
+    sensor_figure(real.hists, synth.hists, out / "realism_sensor.png")
     if figure is not None:
         _figure(real, synth, Path(figure))
     return real, synth
+
+
+def _finite(v) -> float | None:
+    v = float(v)
+    return v if np.isfinite(v) else None

@@ -15,11 +15,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from panoptic_bench.datasets.synthetic.ground import GroundMap
+from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
 from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Primitives
 
-__all__ = ["StreetPlan", "build_street"]
+__all__ = ["StreetPlan", "build_street", "curb_at", "kerb_at"]
 
 ROAD, PARKING, SIDEWALK, OTHER_GROUND = 40, 44, 48, 49
+OTHER_STRUCTURE, OTHER_OBJECT = 52, 99
 BUILDING, FENCE, VEGETATION, TRUNK, TERRAIN, POLE, SIGN = 50, 51, 70, 71, 72, 80, 81
 KERB = 0.14
 PARKING_WIDTH = 2.3
@@ -40,6 +42,10 @@ class StreetPlan:
         Parking strips; ``side`` is +1 (left, y > 0) or -1 (right).
     curb : list of (side, x0, x1, y_curb)
         Per segment, the distance of the kerb (sidewalk inner edge) from the centre line.
+    kerb : list of (side, x0, x1, height)
+        Per segment, the kerb (sidewalk) height; :data:`KERB` where no segment is listed.
+    profile : WorldProfile
+        The world profile the street was built with.
     """
 
     lane_width: float
@@ -48,6 +54,8 @@ class StreetPlan:
     sidewalk_width: float
     parking: list = field(default_factory=list)
     curb: list = field(default_factory=list)
+    kerb: list = field(default_factory=list)
+    profile: WorldProfile = CLASSIC
 
 
 class _Builder:
@@ -100,11 +108,11 @@ def _tree(b: _Builder, rng: np.random.Generator, x: float, y: float, z: float) -
     b.add(ELLIPSOID, center, (rc, rc * rng.uniform(0.8, 1.2), rz), VEGETATION, 0.45, rough=0.25)
 
 
-def _bush(b: _Builder, rng: np.random.Generator, x: float, y: float) -> None:
+def _bush(b: _Builder, rng: np.random.Generator, x: float, y: float, z: float = 0.0) -> None:
     rx, ry, rz = rng.uniform(0.5, 1.6), rng.uniform(0.5, 1.6), rng.uniform(0.4, 1.1)
     b.add(
         ELLIPSOID,
-        (x, y, 0.6 * rz),
+        (x, y, z + 0.6 * rz if z else 0.6 * rz),
         (rx, ry, rz),
         VEGETATION,
         0.45,
@@ -128,7 +136,8 @@ def _buildings(b: _Builder, rng, x0, x1, side, y_near, heights=(6.0, 22.0)) -> N
 def _segment(
     b: _Builder, gm: GroundMap, rng, plan: StreetPlan, side: int, x0: float, x1: float
 ) -> None:
-    parking = rng.random() < 0.45
+    prof = plan.profile
+    parking = rng.random() < prof.parking_prob
     y_curb = plan.road_half + (PARKING_WIDTH if parking else 0.0)
     if parking:
         plan.parking.append((side, x0, x1))
@@ -136,9 +145,11 @@ def _segment(
         gm.paint(x0, x1, ys[0], ys[1], PARKING, 0.32)
     plan.curb.append((side, x0, x1, y_curb))
     y_front = y_curb + plan.sidewalk_width
-    b.box(x0, x1, side * y_curb, side * y_front, 0.0, KERB, SIDEWALK, 0.4)
-    kind = rng.choice(["building", "green", "fence", "plaza"], p=[0.38, 0.36, 0.14, 0.12])
-    back = y_front + rng.uniform(12.0, 22.0)
+    kerb = KERB if prof.kerb[0] == prof.kerb[1] == KERB else float(rng.uniform(*prof.kerb))
+    plan.kerb.append((side, x0, x1, kerb))
+    b.box(x0, x1, side * y_curb, side * y_front, 0.0, kerb, SIDEWALK, 0.4)
+    kind = rng.choice(["building", "green", "fence", "plaza"], p=list(prof.frontage_p))
+    back = y_front + rng.uniform(*prof.green_depth)
     if kind == "building":
         setback = rng.uniform(0.0, 3.0)
         if setback > 0.5:
@@ -150,6 +161,11 @@ def _segment(
         ys = sorted((side * y_front, side * back))
         gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND, 0.28)
     else:
+        z = 0.0
+        if prof.terrain_raise:
+            z = float(rng.uniform(*prof.terrain_raise))
+            ys = sorted((side * y_front, side * back))
+            b.box(x0, x1, ys[0], ys[1], 0.0, z, TERRAIN, rng.uniform(0.3, 0.5), rough=0.03)
         if kind == "fence":
             fh = rng.uniform(1.0, 2.0)
             yf = side * (y_front + 0.3)
@@ -174,10 +190,10 @@ def _segment(
             ys = sorted((side * y_front, side * back))
             gm.paint(xp, xp + 2.0, ys[0], ys[1], OTHER_GROUND, 0.28)
         length = x1 - x0
-        for _ in range(rng.poisson(length / 6.0)):
-            _tree(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0), 0.0)
-        for _ in range(rng.poisson(length / 4.0)):
-            _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0))
+        for _ in range(rng.poisson(length / prof.tree_spacing)):
+            _tree(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0), z)
+        for _ in range(rng.poisson(length / prof.bush_spacing)):
+            _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
     _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
 
 
@@ -187,6 +203,32 @@ def curb_at(plan: StreetPlan, side: int, x: float) -> float:
         if s == side and a <= x < b:
             return y
     return plan.road_half
+
+
+def kerb_at(plan: StreetPlan, side: int, x: float) -> float:
+    """Height of the kerb (sidewalk surface) on ``side`` at ``x``, metres."""
+    for s, a, b, h in plan.kerb:
+        if s == side and a <= x < b:
+            return h
+    return KERB
+
+
+def _clutter(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None:
+    """Unlabelled clutter on the sidewalks: bins, bollards, benches, boxes, shelters, walls."""
+    for side in (-1, 1):
+        for _ in range(rng.poisson((x1 - x0) / plan.profile.clutter_spacing)):
+            x = rng.uniform(x0, x1)
+            kz = kerb_at(plan, side, x)
+            y = side * (curb_at(plan, side, x) + rng.uniform(0.3, plan.sidewalk_width))
+            refl = float(rng.uniform(0.1, 0.6))
+            if rng.random() < 0.7:
+                r, h = rng.uniform(0.1, 0.45), rng.uniform(0.4, 1.3)
+                kind = CYLINDER if rng.random() < 0.5 else BOX
+                b.add(kind, (x, y, kz + h / 2), (r, r, h / 2), OTHER_OBJECT, refl,
+                      yaw=rng.uniform(0, np.pi))  # fmt: skip
+            else:
+                hx, hy, h = rng.uniform(0.5, 2.5), rng.uniform(0.2, 1.0), rng.uniform(1.0, 2.8)
+                b.add(BOX, (x, y, kz + h / 2), (hx, hy, h / 2), OTHER_STRUCTURE, refl)
 
 
 def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None:
@@ -199,15 +241,17 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
         while x < x1:
             y = side * (y_curb_at(x) + 0.45)
             h = rng.uniform(6.0, 9.0)
-            b.add(CYLINDER, (x, y, KERB + h / 2), (0.1, 0.1, h / 2), POLE, 0.4)
-            b.add(BOX, (x, y - side * 0.8, KERB + h - 0.1), (0.08, 0.8, 0.06), POLE, 0.4)
+            kz = kerb_at(plan, side, x)
+            b.add(CYLINDER, (x, y, kz + h / 2), (0.1, 0.1, h / 2), POLE, 0.4)
+            b.add(BOX, (x, y - side * 0.8, kz + h - 0.1), (0.08, 0.8, 0.06), POLE, 0.4)
             x += rng.uniform(18.0, 32.0)
         x = x0 + rng.uniform(0, 30)
         while x < x1:
             y = side * (y_curb_at(x) + 0.5)
             h = rng.uniform(2.2, 2.8)
-            b.add(CYLINDER, (x, y, KERB + h / 2), (0.035, 0.035, h / 2), POLE, 0.4)
-            b.add(BOX, (x + 0.05, y, KERB + h + 0.3), (0.01, 0.32, 0.32), SIGN, 0.95)
+            kz = kerb_at(plan, side, x)
+            b.add(CYLINDER, (x, y, kz + h / 2), (0.035, 0.035, h / 2), POLE, 0.4)
+            b.add(BOX, (x + 0.05, y, kz + h + 0.3), (0.01, 0.32, 0.32), SIGN, 0.95)
             x += rng.uniform(25.0, 60.0)
         x = x0
         while x < x1:
@@ -215,7 +259,7 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
             if rng.random() < 0.55:
                 xt = x + rng.uniform(2.0, 6.0)
                 while xt < min(x + seg, x1):
-                    _tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), KERB)
+                    _tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), kerb_at(plan, side, xt))
                     xt += rng.uniform(7.0, 12.0)
             x += seg
 
@@ -236,7 +280,7 @@ def _markings(gm: GroundMap, rng, plan: StreetPlan, x0: float, x1: float) -> Non
 
 
 def build_street(
-    rng: np.random.Generator, x_range: tuple[float, float]
+    rng: np.random.Generator, x_range: tuple[float, float], profile: WorldProfile = CLASSIC
 ) -> tuple[Primitives, GroundMap, StreetPlan]:
     """Generate the static world of one street.
 
@@ -246,6 +290,8 @@ def build_street(
         Source of randomness (the street is a pure function of its state).
     x_range : tuple of float
         Extent of the street along x, metres.
+    profile : WorldProfile
+        Street dimensions, kerbs, terrain, vegetation and clutter (classic by default).
 
     Returns
     -------
@@ -257,10 +303,11 @@ def build_street(
         Where things can be placed.
     """
     x0, x1 = x_range
-    lanes = int(rng.choice([1, 2], p=[0.45, 0.55]))
-    lane_w = float(rng.uniform(3.3, 3.8))
-    shoulder = float(rng.uniform(0.5, 2.0))
-    plan = StreetPlan(lane_w, lanes, lanes * lane_w + shoulder, float(rng.uniform(3.0, 5.5)))
+    lanes = int(rng.choice([1, 2], p=list(profile.lanes_p)))
+    lane_w = float(rng.uniform(*profile.lane_width))
+    shoulder = float(rng.uniform(*profile.shoulder))
+    sidewalk = float(rng.uniform(*profile.sidewalk))
+    plan = StreetPlan(lane_w, lanes, lanes * lane_w + shoulder, sidewalk, profile=profile)
     gm = GroundMap.blank((x0 - 5.0, x1 + 5.0), (-70.0, 70.0))
     _markings(gm, rng, plan, x0 - 5.0, x1 + 5.0)
     b = _Builder()
@@ -273,4 +320,6 @@ def build_street(
             _segment(b, gm, rng, plan, side, x, x + length)
             x += length
     _furniture(b, rng, plan, x0, x1)
+    if profile.clutter_spacing:
+        _clutter(b, rng, plan, x0, x1)
     return b.primitives(), gm, plan

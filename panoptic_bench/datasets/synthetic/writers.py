@@ -113,6 +113,7 @@ def generate_semantickitti(
     seed: int = 0,
     overwrite: bool = False,
     progress: bool = True,
+    profile=None,
 ) -> Path:
     """Simulate HDL-64E sequences and write them in the SemanticKITTI layout.
 
@@ -128,19 +129,24 @@ def generate_semantickitti(
         Allow writing into a non-empty ``out``.
     progress : bool
         Show a progress bar.
+    profile : WorldProfile or str, optional
+        World and sensor profile (``classic`` by default).
 
     Returns
     -------
     Path
         The dataset root.
     """
+    from panoptic_bench.datasets.synthetic.profile import load_profile
+
+    profile = load_profile(profile)
     root = ensure_output_dir(out, overwrite=overwrite)
     total = sum(sequences.values())
     with tqdm(
         total=total, desc="synth semantickitti", unit="scan", disable=None if progress else True
     ) as bar:
         for name, n_frames in sequences.items():
-            seq = Sequence(seed, int(name), n_frames)
+            seq = Sequence(seed, int(name), n_frames, profile=profile)
             seq_dir = root / "sequences" / f"{int(name):02d}"
             poses, times = [], []
             first_inv = None
@@ -182,10 +188,16 @@ def _attributes(category: str, moving: bool) -> tuple[str, ...]:
     return ("vehicle.moving",) if moving else ("vehicle.parked",)
 
 
-def nuscenes_sequence(seed: int, index: int, samples: int) -> Sequence:
+def nuscenes_sequence(seed: int, index: int, samples: int, profile=None) -> Sequence:
     """The HDL-32E keyframe sequence (2 Hz) of scene ``index`` written by :func:`generate_nuscenes`."""
     return Sequence(
-        seed, 1000 + index, samples, model=HDL32E, rate=2.0, sensor_offset=NUS_LIDAR_TRANSLATION[:2]
+        seed,
+        1000 + index,
+        samples,
+        model=HDL32E,
+        rate=2.0,
+        sensor_offset=NUS_LIDAR_TRANSLATION[:2],
+        profile=profile,
     )
 
 
@@ -258,6 +270,7 @@ def generate_nuscenes(
     seed: int = 0,
     overwrite: bool = False,
     progress: bool = True,
+    profile=None,
 ) -> Path:
     """Simulate HDL-32E scenes and write them as a nuScenes dataroot with lidarseg and boxes.
 
@@ -278,6 +291,9 @@ def generate_nuscenes(
         Allow writing into a non-empty ``out``.
     progress : bool
         Show a progress bar.
+    profile : WorldProfile or str, optional
+        World and sensor profile (``classic`` by default); the realistic sensor (remission,
+        zeros, dropout, pose, ego occlusion) applies to the HDL-32E too, with its own beams.
 
     Returns
     -------
@@ -285,6 +301,9 @@ def generate_nuscenes(
         The dataroot.
     """
     from panoptic_bench.datasets.nuscenes import SceneSpec, write_dataset
+    from panoptic_bench.datasets.synthetic.profile import load_profile
+
+    profile = load_profile(profile)
 
     if scenes < 1 or samples < 1:
         raise InputError("--scenes and --samples must be at least 1")
@@ -300,7 +319,7 @@ def generate_nuscenes(
         disable=None if progress else True,
     ) as bar:
         for s, name in enumerate(names):
-            seq = nuscenes_sequence(seed, s, samples)
+            seq = nuscenes_sequence(seed, s, samples, profile)
             smp = []
             for frame in seq:
                 stamp = t0 + s * 100_000_000 + frame.index * 500_000

@@ -1,0 +1,292 @@
+"""World profiles: every tunable parameter of the synthetic world and its sensor, in one place.
+
+A :class:`WorldProfile` is a frozen dataclass; :data:`CLASSIC` reproduces the original world bit
+for bit (the shipped checkpoints and committed reports were made on it) and :data:`REALISTIC`
+matches the statistics of the 55 real HDL-64E scans of ``../shared/data/semantickitti-train``
+(measured with ``panoptic-bench synth stats``; the real scans choose world statistics only and
+are never used to train or tune a model). Every feature absent from the classic world is off in
+:data:`CLASSIC` and draws no random number, so the classic random streams are unchanged.
+
+Select one with ``--profile classic|realistic`` or a YAML file of overrides
+(``configs/synth_realistic.yaml``: ``base: realistic`` plus any keys below).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from panoptic_bench.errors import InputError
+
+__all__ = [
+    "CLASSIC",
+    "PROFILES",
+    "REAL_HDL64E_ELEVATIONS",
+    "REALISTIC",
+    "WorldProfile",
+    "load_profile",
+]
+
+#: Median elevation (degrees) of each ring of the 55 real HDL-64E scans, lowest first.
+REAL_HDL64E_ELEVATIONS = (
+    -23.673, -23.157, -22.677, -22.047, -21.619, -21.192, -20.721, -20.093, -19.602, -19.041,
+    -18.606, -18.189, -17.689, -17.232, -16.67, -16.145, -15.512, -15.146, -14.65, -14.215,
+    -13.64, -13.12, -12.596, -12.171, -11.72, -11.291, -10.799, -10.198, -9.738, -9.354, -8.898,
+    -8.382, -7.771, -7.396, -7.173, -6.834, -6.467, -6.202, -5.897, -5.589, -5.255, -4.939,
+    -4.626, -4.305, -4.008, -3.634, -3.352, -2.962, -2.647, -2.312, -1.993, -1.656, -1.289,
+    -0.96, -0.662, -0.265, 0.087, 0.453, 0.725, 1.129, 1.415, 1.874, 2.131, 2.495,
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class WorldProfile:
+    """Parameters of the synthetic world and of its sensor model.
+
+    Sensor (applied to every LiDAR model, HDL-64E and HDL-32E alike):
+
+    - ``height_shift``, ``pitch_deg``, ``roll_deg``: (mean, std) per sequence of the sensor
+      height change (m) and tilt (degrees; positive pitch looks down, positive roll lowers the
+      left side);
+    - ``real_elevations``: HDL-64E beams at :data:`REAL_HDL64E_ELEVATIONS`;
+    - ``low_ring_keep``: keep probability of the lowest rings (ring 0 first);
+    - ``ego_box``: ego-vehicle body that hides rays, ``(x_back, x_front, y_right, y_left,
+      z_top)`` in the sensor frame (metres; empty = none);
+    - ``max_range``: cap on the range (0 = the model's);
+    - ``physical_remission``: remission = reflectivity x incidence^``rem_incidence_exp`` x
+      exp(-range / ``rem_range_m``) x lognormal(``rem_spread``), recorded as exactly 0 below
+      ``rem_zero_below``; each primitive's reflectivity is spread by lognormal
+      (``rem_material_spread``); ``rem_dark_prob`` of vehicle primitives (dark paint, glass) and
+      ``rem_dark_stuff`` of the others are dark (x 0.1); far dark returns are kept (as 0)
+      instead of dropped. Off: the classic constant x (0.7 + 0.3 cos).
+
+    Ground and world:
+
+    - ``ground_rough``: iid vertical roughness of the ground (m, std); ``ground_wave``: amplitude
+      (m) of gentle undulations (30-80 m wavelengths); ``camber``: road cross-fall towards the
+      kerbs (fraction);
+    - ``kerb``: (low, high) kerb height range (m); ``terrain_raise``: (low, high) height of
+      green areas above the road (m, empty = flat);
+    - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
+      ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
+      building, green, fence or plaza frontage per segment); ``parking_prob`` per segment;
+    - object density: mean spacing (m) per side of pedestrian groups ``ped_spacing``, parked
+      bicycles ``bike_spacing``, cyclists ``cyclist_spacing``; ``traffic_gap`` range (m);
+      ``parked_fill``: fraction of parking strips filled with cars;
+    - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
+      (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas.
+    """
+
+    name: str = "classic"
+    height_shift: tuple[float, float] = (0.0, 0.0)
+    pitch_deg: tuple[float, float] = (0.0, 0.0)
+    roll_deg: tuple[float, float] = (0.0, 0.0)
+    real_elevations: bool = False
+    low_ring_keep: tuple[float, ...] = ()
+    ego_box: tuple[float, ...] = ()
+    max_range: float = 0.0
+    physical_remission: bool = False
+    rem_incidence_exp: float = 0.5
+    rem_range_m: float = 60.0
+    rem_spread: float = 0.3
+    rem_material_spread: float = 0.4
+    rem_dark_prob: float = 0.0
+    rem_dark_stuff: float = 0.0
+    rem_zero_below: float = 0.0
+    ground_rough: float = 0.0
+    ground_wave: float = 0.0
+    camber: float = 0.0
+    kerb: tuple[float, float] = (0.14, 0.14)
+    terrain_raise: tuple[float, ...] = ()
+    lanes_p: tuple[float, float] = (0.45, 0.55)
+    lane_width: tuple[float, float] = (3.3, 3.8)
+    shoulder: tuple[float, float] = (0.5, 2.0)
+    sidewalk: tuple[float, float] = (3.0, 5.5)
+    green_depth: tuple[float, float] = (12.0, 22.0)
+    frontage_p: tuple[float, float, float, float] = (0.38, 0.36, 0.14, 0.12)
+    parking_prob: float = 0.45
+    parked_fill: float = 1.0
+    ped_spacing: float = 30.0
+    bike_spacing: float = 60.0
+    cyclist_spacing: float = 70.0
+    traffic_gap: tuple[float, float] = (25.0, 90.0)
+    clutter_spacing: float = 0.0
+    tree_spacing: float = 6.0
+    bush_spacing: float = 4.0
+
+    def __post_init__(self) -> None:
+        problems = []
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, tuple) and len(v) == 2 and f.name != "lanes_p":
+                if v[0] > v[1] and f.name not in ("height_shift", "pitch_deg", "roll_deg"):
+                    problems.append(f"{f.name} range {v} is reversed")
+        checks = {
+            "low_ring_keep": all(0.0 <= k <= 1.0 for k in self.low_ring_keep),
+            "ego_box": len(self.ego_box) in (0, 5),
+            "terrain_raise": len(self.terrain_raise) in (0, 2),
+            "lanes_p": abs(sum(self.lanes_p) - 1.0) < 1e-9 and min(self.lanes_p) >= 0,
+            "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
+            "parking_prob": 0.0 <= self.parking_prob <= 1.0,
+            "parked_fill": 0.0 <= self.parked_fill <= 1.0,
+            "rem_dark_prob": 0.0 <= self.rem_dark_prob <= 1.0,
+            "rem_dark_stuff": 0.0 <= self.rem_dark_stuff <= 1.0,
+            "rem_zero_below": 0.0 <= self.rem_zero_below < 1.0,
+            "rem_range_m": self.rem_range_m > 0,
+            "max_range": 0.0 <= self.max_range <= 250.0,
+            "ped_spacing": self.ped_spacing > 0,
+            "bike_spacing": self.bike_spacing > 0,
+            "cyclist_spacing": self.cyclist_spacing > 0,
+            "tree_spacing": self.tree_spacing > 0,
+            "bush_spacing": self.bush_spacing > 0,
+            "clutter_spacing": self.clutter_spacing >= 0,
+            "lane_width": self.lane_width[0] >= 2.0,
+            "sidewalk": self.sidewalk[0] >= 0.5,
+            "kerb": 0.0 <= self.kerb[0] and self.kerb[1] <= 0.5,
+            "ground_rough": 0.0 <= self.ground_rough <= 0.5,
+            "ground_wave": 0.0 <= self.ground_wave <= 2.0,
+            "camber": 0.0 <= self.camber <= 0.1,
+        }
+        problems += [
+            f"{k} = {getattr(self, k)!r} is out of range" for k, ok in checks.items() if not ok
+        ]
+        if problems:
+            raise InputError(f"world profile {self.name!r}: " + "; ".join(problems))
+
+    @property
+    def sensor_model(self) -> bool:
+        """True when any sensor parameter differs from the classic sensor."""
+        return any(getattr(self, k) != getattr(CLASSIC, k) for k in _SENSOR_KEYS)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain mapping (tuples as lists), the inverse of :meth:`from_dict`."""
+        return {
+            f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
+            for f in dataclasses.fields(self)
+        }
+
+    @classmethod
+    def from_dict(
+        cls,
+        mapping: dict[str, Any],
+        source: str | Path | None = None,
+        base: WorldProfile | None = None,
+    ) -> WorldProfile:
+        """Profile from a mapping of overrides on ``base`` (classic by default).
+
+        Unknown keys and values of the wrong type are :class:`InputError` naming the key.
+        """
+        if not isinstance(mapping, dict):
+            raise InputError("a world profile must be a mapping of key: value", source)
+        hints = typing.get_type_hints(cls)
+        unknown = sorted(set(mapping) - set(hints))
+        if unknown:
+            raise InputError(
+                f"unknown world profile key {unknown[0]!r}; known keys: {', '.join(hints)}", source
+            )
+        values = {k: _coerce(hints[k], v, k, source) for k, v in mapping.items()}
+        return dataclasses.replace(base if base is not None else CLASSIC, **values)
+
+
+def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
+    if typing.get_origin(hint) is tuple:
+        args = typing.get_args(hint)
+        if not isinstance(value, list | tuple):
+            raise InputError(f"world profile key {key!r} must be a list, got {value!r}", source)
+        if not (len(args) == 2 and args[1] is Ellipsis) and len(value) != len(args):
+            raise InputError(f"world profile key {key!r} needs {len(args)} numbers", source)
+        return tuple(_coerce(float, v, key, source) for v in value)
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise InputError(f"world profile key {key!r} must be true or false", source)
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(f"world profile key {key!r} must be a number, got {value!r}", source)
+        return float(value)
+    if not isinstance(value, str):
+        raise InputError(f"world profile key {key!r} must be a string, got {value!r}", source)
+    return value
+
+
+CLASSIC = WorldProfile()
+_SENSOR_KEYS = (
+    "height_shift", "pitch_deg", "roll_deg", "real_elevations", "low_ring_keep", "ego_box",
+    "max_range", "physical_remission", "rem_incidence_exp", "rem_range_m", "rem_spread",
+    "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below", "ground_rough", "ground_wave",
+    "camber",
+)  # fmt: skip
+
+REALISTIC = WorldProfile(
+    name="realistic",
+    height_shift=(0.07, 0.02),
+    pitch_deg=(0.6, 0.3),
+    roll_deg=(-0.3, 1.0),
+    real_elevations=True,
+    low_ring_keep=(0.91, 0.96, 0.93, 0.95, 0.96, 0.98, 0.99),
+    ego_box=(-1.4, 1.0, -0.75, 0.9, -0.5),
+    max_range=80.0,
+    physical_remission=True,
+    rem_incidence_exp=0.1,
+    rem_range_m=50.0,
+    rem_spread=0.2,
+    rem_material_spread=0.25,
+    rem_dark_prob=0.5,
+    rem_dark_stuff=0.06,
+    rem_zero_below=0.06,
+    ground_rough=0.03,
+    ground_wave=0.08,
+    camber=0.02,
+    kerb=(0.04, 0.14),
+    terrain_raise=(0.1, 0.45),
+    lanes_p=(0.7, 0.3),
+    lane_width=(3.0, 3.5),
+    shoulder=(0.2, 1.0),
+    sidewalk=(2.0, 4.0),
+    green_depth=(8.0, 20.0),
+    frontage_p=(0.25, 0.5, 0.13, 0.12),
+    parking_prob=0.3,
+    parked_fill=0.45,
+    ped_spacing=120.0,
+    bike_spacing=150.0,
+    cyclist_spacing=200.0,
+    traffic_gap=(60.0, 200.0),
+    clutter_spacing=50.0,
+    tree_spacing=6.0,
+    bush_spacing=3.0,
+)
+
+PROFILES = {"classic": CLASSIC, "realistic": REALISTIC}
+
+
+def load_profile(spec: str | WorldProfile | None) -> WorldProfile:
+    """A profile by name (``classic``, ``realistic``), from a YAML file, or as given.
+
+    A YAML file holds a mapping of overrides and an optional ``base`` (a profile name).
+    """
+    if spec is None:
+        return CLASSIC
+    if isinstance(spec, WorldProfile):
+        return spec
+    if spec in PROFILES:
+        return PROFILES[spec]
+    path = Path(spec)
+    if path.suffix not in (".yaml", ".yml"):
+        raise InputError(f"unknown profile {spec!r}; use classic, realistic or a .yaml file")
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise InputError(f"cannot read profile ({exc.strerror})", path) from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"profile is not valid YAML ({exc})", path) from None
+    if not isinstance(data, dict):
+        raise InputError("a profile file must be a mapping", path)
+    data = dict(data)
+    base = data.pop("base", "classic")
+    if base not in PROFILES:
+        raise InputError(f"unknown base profile {base!r}; use classic or realistic", path)
+    return WorldProfile.from_dict(data, path, base=PROFILES[base])

@@ -1,0 +1,255 @@
+"""Sensor and world realism measures of one labelled scan (remission, ground, pose, layout, rings).
+
+:func:`scan_measures` is a pure array function of one scan in the sensor frame; it returns the
+scalar measures named in :data:`MEASURES` (``nan`` where a scan has too few points to define one)
+and a few histograms (:data:`HISTOGRAMS`). :func:`aggregate` combines scans: fractions are
+averaged over scans, medians and geometry take the median over scans, histograms are summed.
+
+Conventions (the same estimator runs on real and synthetic scans, so only the comparison matters):
+
+- **rings** are recovered from the point order: the unwrapped azimuth grows by one turn per ring
+  in both the KITTI files and the synthetic writer; rings are then ranked by median elevation
+  (0 = lowest beam);
+- **road plane**: least squares ``z = a x + b y + c`` over road points 3-20 m away, refitted
+  without residuals above 0.15 m; ``c`` is the road height under the sensor, ``atan(a)`` the
+  ground slope along x (reported as sensor pitch, positive when the road rises ahead, i.e. the
+  sensor looks down) and ``atan(b)`` along y (sensor roll, positive when the road rises to the
+  left); roughness is the standard deviation of the refit residuals;
+- heights of sidewalk and terrain are median residuals of their points 3-20 m away from that
+  plane; the ego hole is the minimum horizontal range of ground points (road, parking, sidewalk, other-ground,
+  terrain) in each of 8 azimuth sectors (45 degrees,
+  sector 0 centred on +x, counter-clockwise).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["HISTOGRAMS", "MEASURES", "aggregate", "recover_rings", "scan_measures"]
+
+#: Scalar measures: key -> (label, aggregation over scans: "mean" or "median").
+MEASURES: dict[str, tuple[str, str]] = {
+    "rem_zero_pct": ("remission: % of points exactly 0", "mean"),
+    "rem_dark_pct": ("remission: % of points below 0.1", "mean"),
+    "rem_dark_road_pct": ("remission: % of the points below 0.1 that are road", "mean"),
+    "rem_dark_car_pct": ("remission: % of the points below 0.1 that are car", "mean"),
+    "rem_std": ("remission: standard deviation", "mean"),
+    "rem_car_median": ("remission: car median", "median"),
+    "rem_car_zero_pct": ("remission: % of car points exactly 0", "mean"),
+    "rem_road_lt5": ("remission: road median under 5 m", "median"),
+    "rem_road_20_40": ("remission: road median at 20-40 m", "median"),
+    "rem_road_gt40": ("remission: road median beyond 40 m", "median"),
+    "road_z": ("ground: road plane height under the sensor (m)", "median"),
+    "pitch_deg": ("pose: sensor pitch from the road plane (deg)", "median"),
+    "roll_deg": ("pose: sensor roll from the road plane (deg)", "median"),
+    "road_rough_cm": ("ground: road roughness, residual std (cm)", "median"),
+    "below_185_pct": ("ground: % of points below z = -1.85 m", "mean"),
+    "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
+    "terrain_h": ("ground: terrain height above the road (m)", "median"),
+    "building_y": ("layout: building median |y| (m)", "median"),
+    "car_y": ("layout: car median |y| (m)", "median"),
+    "car_range": ("layout: car points median range (m)", "median"),
+    "near5_pct": ("layout: % of points under 5 m", "mean"),
+    "far_max": ("layout: farthest point (m)", "median"),
+    "hole_min": ("ego hole: smallest sector minimum range (m)", "median"),
+    "hole_max": ("ego hole: largest sector minimum range (m)", "median"),
+    "low_ring_ratio": ("rings: points per ring, lowest 12 / others", "median"),
+    "n_rings": ("rings: rings recovered", "median"),
+    "clutter_pct": ("content: % unlabelled clutter (other-structure, other-object)", "mean"),
+    "unlabeled_pct": ("content: % of points ignored (unlabeled, outlier, clutter)", "mean"),
+}
+
+#: Histograms summed over scans: key -> bin edges (``ring_points`` and ``hole`` have fixed length).
+HISTOGRAMS = {
+    "remission": np.linspace(0.0, 1.0, 51),
+    "height": np.linspace(-0.6, 0.6, 61),
+    "range": np.arange(0.0, 122.0, 2.0),
+}
+RANGE_BINS = np.arange(0.0, 85.0, 5.0)
+N_RINGS = 64
+N_SECTORS = 8
+ROAD, SIDEWALK, TERRAIN, CAR, BUILDING = 40, 48, 72, 10, 50
+CLUTTER = (52, 99)
+GROUND = (40, 44, 48, 49, 72)
+_MOVING_CAR = 252
+
+
+def recover_rings(xyz: np.ndarray) -> np.ndarray:
+    """Ring index of every point of a ring-ordered scan, ranked by elevation.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float
+        Points in the order the sensor recorded them (ring by ring).
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+        0 = lowest ring; ``max + 1`` is the number of rings found.
+    """
+    if xyz.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    turn = np.unwrap(np.arctan2(xyz[:, 1], xyz[:, 0]).astype(np.float64))
+    turn = np.abs(turn - turn[0])
+    elev = np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1]))
+    # rings may start before the first recorded point (hidden azimuths): choose the phase
+    # whose segments have the least elevation spread
+    best, seg = np.inf, None
+    for shift in np.linspace(0.0, 2 * np.pi, 16, endpoint=False):
+        cand = np.floor((turn + shift) / (2 * np.pi) + 1e-3).astype(np.int64)
+        n = np.bincount(cand).astype(np.float64)
+        mean = np.bincount(cand, elev) / np.maximum(n, 1)
+        spread = float(np.sum((elev - mean[cand]) ** 2))
+        if spread < best - 1e-12:
+            best, seg = spread, cand
+    seg = seg - seg.min()
+    n = seg.max() + 1
+    med = np.array([np.median(elev[seg == k]) if np.any(seg == k) else np.inf for k in range(n)])
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(med, kind="stable")] = np.arange(n)
+    return rank[seg]
+
+
+def _plane(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray | None:
+    """Robust least-squares plane ``z = a x + b y + c``: ``(a, b, c)`` or None."""
+    keep = np.ones(x.size, bool)
+    coef = None
+    for _ in range(3):
+        if keep.sum() < 100:
+            return None
+        a = np.column_stack([x[keep], y[keep], np.ones(keep.sum())])
+        coef = np.linalg.lstsq(a, z[keep], rcond=None)[0]
+        keep = np.abs(z - (coef[0] * x + coef[1] * y + coef[2])) < 0.15
+    return coef
+
+
+def _median(v: np.ndarray) -> float:
+    return float(np.median(v)) if v.size else float("nan")
+
+
+def _pct(mask: np.ndarray) -> float:
+    return 100.0 * float(mask.mean()) if mask.size else float("nan")
+
+
+def scan_measures(
+    points: np.ndarray, labels: np.ndarray
+) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Realism measures of one scan.
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, 4), float32
+        ``x, y, z, remission`` in the sensor frame, in recording order.
+    labels : ndarray of shape (N,), uint32
+        SemanticKITTI labels (raw id in the low 16 bits).
+
+    Returns
+    -------
+    measures : dict of str to float
+        One value per key of :data:`MEASURES`.
+    hists : dict of str to ndarray
+        Counts per key of :data:`HISTOGRAMS`, plus ``road_rem_sum`` / ``road_rem_n`` (road
+        remission sums and counts per 5 m range bin), ``ring_points`` (64,), ``ring_elev`` (64,)
+        median elevation per ring, degrees) and ``hole`` (8,).
+    """
+    x, y, z = (points[:, k].astype(np.float64) for k in range(3))
+    rem = points[:, 3].astype(np.float64)
+    raw = (labels & 0xFFFF).astype(np.int64)
+    r = np.hypot(x, y)
+    road, car = raw == ROAD, (raw == CAR) | (raw == _MOVING_CAR)
+    dark = rem < 0.1
+    m: dict[str, float] = {
+        "rem_zero_pct": _pct(rem == 0),
+        "rem_dark_pct": _pct(dark),
+        "rem_dark_road_pct": _pct(road[dark]),
+        "rem_dark_car_pct": _pct(car[dark]),
+        "rem_std": float(rem.std()) if rem.size else float("nan"),
+        "rem_car_median": _median(rem[car]),
+        "rem_car_zero_pct": _pct(rem[car] == 0),
+        "rem_road_lt5": _median(rem[road & (r < 5)]),
+        "rem_road_20_40": _median(rem[road & (r >= 20) & (r < 40)]),
+        "rem_road_gt40": _median(rem[road & (r >= 40)]),
+        "below_185_pct": _pct(z < -1.85),
+        "building_y": _median(np.abs(y[raw == BUILDING])),
+        "car_y": _median(np.abs(y[car])),
+        "car_range": _median(r[car]),
+        "near5_pct": _pct(r < 5),
+        "far_max": float(r.max()) if r.size else float("nan"),
+        "clutter_pct": _pct(np.isin(raw, CLUTTER)),
+    }
+    from panoptic_bench.datasets.semantickitti import to_train
+
+    m["unlabeled_pct"] = _pct(to_train(raw.astype(np.uint16)) == 0)
+    sel = road & (r >= 3) & (r <= 20)
+    coef = _plane(x[sel], y[sel], z[sel])
+    resid = np.zeros(0)
+    nan = float("nan")
+    m.update(road_z=nan, pitch_deg=nan, roll_deg=nan, road_rough_cm=nan)
+    m.update(sidewalk_h=nan, terrain_h=nan)
+    if coef is not None:
+        a, b, c = coef
+        m.update(
+            road_z=float(c),
+            pitch_deg=float(np.degrees(np.arctan(a))),
+            roll_deg=float(np.degrees(np.arctan(b))),
+        )
+        resid = z - (a * x + b * y + c)
+        fit = sel & (np.abs(resid) < 0.15)
+        m["road_rough_cm"] = 100.0 * float(resid[fit].std())
+        near = (r >= 3) & (r <= 20)
+        m["sidewalk_h"] = _median(resid[near & (raw == SIDEWALK)])
+        m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
+    ring = recover_rings(points[:, :3])
+    ring_points = np.bincount(ring, minlength=N_RINGS)[:N_RINGS]
+    elev = np.degrees(np.arctan2(z, r))
+    ring_elev = np.array([_median(elev[ring == k]) for k in range(N_RINGS)])
+    m["n_rings"] = float(ring.max() + 1) if ring.size else 0.0
+    others = ring_points[12:]
+    m["low_ring_ratio"] = (
+        float(ring_points[:12].mean() / others.mean()) if others.sum() > 0 else nan
+    )
+    sector = np.floor((np.arctan2(y, x) + np.pi / N_SECTORS) / (2 * np.pi / N_SECTORS))
+    sector = sector.astype(np.int64) % N_SECTORS
+    ground = np.isin(raw, GROUND)
+    hole = np.full(N_SECTORS, np.nan)
+    for k in range(N_SECTORS):
+        if np.any(ground & (sector == k)):
+            hole[k] = r[ground & (sector == k)].min()
+    m["hole_min"], m["hole_max"] = float(np.nanmin(hole)), float(np.nanmax(hole))
+    rbin = np.digitize(r, RANGE_BINS) - 1
+    ok = road & (rbin >= 0) & (rbin < RANGE_BINS.size - 1)
+    nb = RANGE_BINS.size - 1
+    h = {
+        "remission": np.histogram(rem, HISTOGRAMS["remission"])[0],
+        "height": np.histogram(resid, HISTOGRAMS["height"])[0],
+        "range": np.histogram(r, HISTOGRAMS["range"])[0],
+        "road_rem_sum": np.bincount(rbin[ok], weights=rem[ok], minlength=nb)[:nb],
+        "road_rem_n": np.bincount(rbin[ok], minlength=nb)[:nb].astype(np.float64),
+        "ring_points": ring_points.astype(np.float64),
+        "ring_elev": ring_elev,
+        "hole": hole,
+    }
+    return m, h
+
+
+def aggregate(
+    scans: list[tuple[dict[str, float], dict[str, np.ndarray]]],
+) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Combine per-scan measures: mean or median over scans (``nan`` ignored); histograms summed.
+
+    ``ring_points`` becomes the mean per scan; ``hole`` and ``ring_elev`` the median per entry.
+    """
+    out: dict[str, float] = {}
+    for key, (_, how) in MEASURES.items():
+        v = np.array([s[0][key] for s in scans], float)
+        v = v[np.isfinite(v)]
+        out[key] = (
+            float("nan") if v.size == 0 else float(np.mean(v) if how == "mean" else np.median(v))
+        )
+    medians = ("hole", "ring_elev")
+    hists = {k: np.sum([s[1][k] for s in scans], axis=0) for k in scans[0][1] if k not in medians}
+    hists["ring_points"] = hists["ring_points"] / len(scans)
+    for key in medians:
+        v = np.array([s[1][key] for s in scans])
+        hists[key] = np.array([np.nanmedian(c) if np.isfinite(c).any() else np.nan for c in v.T])
+    return out, hists

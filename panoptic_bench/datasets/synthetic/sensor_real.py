@@ -1,0 +1,202 @@
+"""The realistic sensor model of a :class:`~.profile.WorldProfile` (``physical_remission`` etc.).
+
+One :class:`SensorState` per sequence (drawn from ``default_rng([seed, key, 2])``): sensor height,
+pitch and roll, the gentle undulation of the ground, and a gain and dark flag per primitive (the
+material of each surface, constant along the sequence). :func:`sweep_realistic` then casts the
+tilted beam grid (real HDL-64E elevations when asked), hides rays that hit the ego vehicle,
+moves ground returns onto the rough, cambered, undulating ground, records remission with range
+and incidence falloff (quantised to 0.01, exactly 0 below the detection floor: far road, dark
+paint, glass, grazing angles) and applies dropout, thinner low rings and the range cap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from panoptic_bench.datasets.synthetic.profile import REAL_HDL64E_ELEVATIONS, WorldProfile
+from panoptic_bench.datasets.synthetic.raycast import GROUND, cast, ray_directions
+from panoptic_bench.datasets.synthetic.scene import Scene
+from panoptic_bench.datasets.synthetic.shapes import normals
+
+__all__ = ["SensorState", "sensor_state", "sweep_realistic", "tilt_matrix"]
+
+#: Raw ids whose primitives are vehicle bodies / glass (dark paint is common).
+_VEHICLES = (10, 13, 15, 18, 20, 252, 257, 258, 259)
+
+
+@dataclass(frozen=True)
+class SensorState:
+    """Per-sequence draw of the realistic sensor.
+
+    Attributes
+    ----------
+    height : float
+        Sensor height above the road, metres.
+    rotation : ndarray of shape (3, 3), float64
+        Sensor-to-level rotation (pitch about y, roll about x).
+    wave : ndarray of shape (3, 3), float64
+        Ground undulation terms ``(amplitude m, wavenumber rad/m, phase)`` along x.
+    gain : ndarray of shape (M,), float32
+        Reflectivity factor of every primitive of the scene (static first, then things).
+    """
+
+    height: float
+    rotation: np.ndarray
+    wave: np.ndarray
+    gain: np.ndarray
+
+
+def tilt_matrix(pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Sensor-to-level rotation, ndarray (3, 3) float64.
+
+    Positive pitch points the sensor's x axis down (the road then rises ahead in the sensor
+    frame); positive roll lowers its left (+y) side.
+    """
+    p, r = np.radians(pitch_deg), -np.radians(roll_deg)
+    ry = np.array([[np.cos(p), 0.0, np.sin(p)], [0.0, 1.0, 0.0], [-np.sin(p), 0.0, np.cos(p)]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(r), -np.sin(r)], [0.0, np.sin(r), np.cos(r)]])
+    return ry @ rx
+
+
+def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) -> SensorState:
+    """Draw the sensor pose, ground undulation and surface materials of one sequence."""
+    h = rng.normal(*profile.height_shift)
+    pitch, roll = rng.normal(*profile.pitch_deg), rng.normal(*profile.roll_deg)
+    wave = np.column_stack(
+        [
+            profile.ground_wave * rng.uniform(0.3, 1.0, 3) / np.sqrt(3.0),
+            2 * np.pi / rng.uniform(30.0, 80.0, 3),
+            rng.uniform(0.0, 2 * np.pi, 3),
+        ]
+    )
+    labels = np.concatenate([scene.static.label, scene._local.label])
+    gain = rng.lognormal(0.0, profile.rem_material_spread, labels.size)
+    vehicle = np.isin(labels, _VEHICLES)
+    p_dark = np.where(vehicle, profile.rem_dark_prob, profile.rem_dark_stuff)
+    gain = np.where(rng.random(labels.size) < p_dark, 0.1 * gain, gain)
+    return SensorState(float(h), tilt_matrix(pitch, roll), wave, gain.astype(np.float32))
+
+
+def _ego_hidden(dirs: np.ndarray, box: tuple[float, ...]) -> np.ndarray:
+    """Rays (sensor frame) that hit the top of the ego body ``(xb, xf, yr, yl, z_top)``."""
+    xb, xf, yr, yl, zt = box
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(dirs[:, 2] < 0, zt / dirs[:, 2], np.inf)
+    x, y = dirs[:, 0] * t, dirs[:, 1] * t
+    return np.isfinite(t) & (x >= xb) & (x <= xf) & (y >= yr) & (y <= yl)
+
+
+def _ground_height(scene: Scene, state: SensorState, profile: WorldProfile, wx, wy, n, rng):
+    """Height of the ground surface at world ``(wx, wy)``: waves + camber + roughness."""
+    h = np.zeros(n)
+    for amp, k, ph in state.wave:
+        h += amp * np.sin(k * wx + ph)
+    road_half = scene.plan.road_half
+    h -= profile.camber * np.minimum(np.abs(wy), road_half)
+    if profile.ground_rough:
+        h += rng.normal(0.0, profile.ground_rough, n)
+    return h
+
+
+def sweep_realistic(
+    scene: Scene,
+    time: float,
+    model,
+    rng: np.random.Generator,
+    sensor_xy_offset: tuple[float, float],
+    profile: WorldProfile,
+    state: SensorState,
+):
+    """One sweep with the realistic sensor; same contract as :func:`.sensor.sweep`."""
+    from panoptic_bench.datasets.synthetic.sensor import Sweep
+
+    height = model.mount_height + state.height
+    max_range = profile.max_range or model.max_range
+    ex, ey, eyaw = scene.ego_pose(time)
+    c, s = np.cos(eyaw), np.sin(eyaw)
+    sx = ex + c * sensor_xy_offset[0] - s * sensor_xy_offset[1]
+    sy = ey + s * sensor_xy_offset[0] + c * sensor_xy_offset[1]
+    world = scene.primitives_at(time)
+    local = world.take(slice(None))
+    dx, dy = world.center[:, 0] - sx, world.center[:, 1] - sy
+    local.center = np.stack(
+        [c * dx + s * dy, -s * dx + c * dy, world.center[:, 2] - height], axis=1
+    )
+    local.yaw = world.yaw - eyaw
+    elev_deg = model.elevation_deg
+    if profile.real_elevations and model.n_beams == len(REAL_HDL64E_ELEVATIONS):
+        elev_deg = REAL_HDL64E_ELEVATIONS
+    elevation = np.radians(np.asarray(elev_deg))
+    n_c = model.n_azimuth
+    step = 2 * np.pi / n_c
+    azimuth = -np.pi + (np.arange(n_c) + 0.5) * step + rng.uniform(-0.1, 0.1) * step
+    hits = cast(local, elevation, azimuth, -height, max_range, rotation=state.rotation)
+    dirs_s = ray_directions(elevation, azimuth)
+    dirs = dirs_s @ state.rotation.T
+    ok = np.isfinite(hits.t)
+    if profile.ego_box:
+        ok &= ~_ego_hidden(dirs_s, profile.ego_box)
+    idx = np.flatnonzero(ok)
+    prim, t = hits.prim[idx], hits.t[idx]
+    on_ground = prim == GROUND
+    obj = np.flatnonzero(~on_ground)
+    d = dirs[idx]
+    pts = d * t[:, None]
+    nrm = np.zeros_like(pts)
+    nrm[on_ground, 2] = 1.0
+    nrm[obj] = normals(local, prim[obj], pts[obj])
+    label = np.zeros(idx.size, np.uint16)
+    reflect = np.zeros(idx.size, np.float32)
+    gain = np.ones(idx.size, np.float32)
+    instance = np.zeros(idx.size, np.uint32)
+    rough = np.zeros(idx.size, np.float32)
+    g = np.flatnonzero(on_ground)
+    wx = sx + c * pts[g, 0] - s * pts[g, 1]
+    wy = sy + s * pts[g, 0] + c * pts[g, 1]
+    label[g], reflect[g] = scene.ground.lookup(wx, wy)
+    # rough, cambered, undulating ground: two fixed-point steps of the ray / height-field hit
+    dh = _ground_height(scene, state, profile, wx, wy, g.size, rng)
+    h0 = dh - _ground_height(scene, state, profile, np.array([sx]), np.array([sy]), 1, rng)[0]
+    t[g] = (-height + h0) / np.minimum(d[g, 2], -1e-3)
+    p = prim[obj]
+    label[obj] = local.label[p]
+    reflect[obj] = local.reflect[p]
+    gain[obj] = state.gain[p]
+    rough[obj] = local.rough[p]
+    owner = local.owner[p]
+    instance[obj] = np.where(owner >= 0, owner + 1, 0).astype(np.uint32)
+
+    cos_inc = np.clip(np.abs(np.einsum("ij,ij->i", nrm, d)), 1e-4, 1.0)
+    t = (
+        t
+        + rough * rng.exponential(1.0, idx.size)
+        + np.clip(
+            rng.normal(0.0, model.range_noise, idx.size),
+            -2.5 * model.range_noise,
+            2.5 * model.range_noise,
+        )
+    )
+    fall_r = 1.0 / (1.0 + (t / profile.rem_range_m) ** 4)
+    fall_i = cos_inc**profile.rem_incidence_exp / (1.0 + (0.06 / cos_inc) ** 8)
+    rem = reflect * gain * fall_r * fall_i * rng.lognormal(0.0, profile.rem_spread, idx.size)
+    rem = np.floor(np.clip(rem, 0.0, 0.99) * 100.0) / 100.0
+    rem[rem < profile.rem_zero_below] = 0.0
+    keep_p = np.full(idx.size, 1.0 - model.dropout)
+    ring_all = idx // n_c
+    if profile.low_ring_keep:
+        table = np.ones(elevation.size)
+        table[: len(profile.low_ring_keep)] = profile.low_ring_keep
+        keep_p *= table[ring_all]
+    keep = (rng.random(idx.size) < keep_p) & (t >= model.min_range) & (t <= max_range)
+    xyz = (dirs_s[idx] * t[:, None])[keep].astype(np.float32)
+    ring, column = np.divmod(idx[keep], n_c)
+    return Sweep(
+        xyz,
+        rem[keep].astype(np.float32),
+        ring.astype(np.uint8),
+        column.astype(np.int32),
+        label[keep],
+        instance[keep],
+    )
