@@ -95,12 +95,14 @@ class _Job:
     n_points: int
 
 
-def _score_one(
-    job: _Job,
-    classes: ChallengeClasses,
-    min_points: int,
-    edges: tuple[float, ...] | None,
-) -> tuple[PanopticStats, RangeStats | None]:
+def load_checked(
+    job: _Job, classes: ChallengeClasses
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Read and check one sample: ``(pred, pred_sem, gt, sem_gt)``, each of shape (n_points,).
+
+    ``pred``/``gt`` are the full panoptic labels (int64), ``pred_sem = pred // 1000`` and
+    ``sem_gt`` the ground truth mapped to challenge classes.
+    """
     gt = load_panoptic_npz(job.gt_path)
     if len(gt) != job.n_points:
         raise InputError(
@@ -118,6 +120,12 @@ def _score_one(
             f"{job.n_points} points",
             job.pred_path,
         )
+    if pred.dtype != np.uint16:
+        raise InputError(
+            f"prediction 'data' must be uint16 (class x 1000 + instance), got {pred.dtype}; "
+            "save it with data=labels.astype(np.uint16)",
+            job.pred_path,
+        )
     pred_sem = pred // 1000
     bad = (pred_sem < 0) | (pred_sem >= classes.num_classes)
     if bad.any():
@@ -128,8 +136,17 @@ def _score_one(
         )
     if (pred < 0).any():
         raise InputError("prediction labels must be non-negative", job.pred_path)
-    sem_gt = classes.lut[gt_general]
-    args = (pred_sem, pred.astype(np.int64), sem_gt, gt.astype(np.int64))
+    return pred.astype(np.int64), pred_sem, gt.astype(np.int64), classes.lut[gt_general]
+
+
+def _score_one(
+    job: _Job,
+    classes: ChallengeClasses,
+    min_points: int,
+    edges: tuple[float, ...] | None,
+) -> tuple[PanopticStats, RangeStats | None]:
+    pred, pred_sem, gt, sem_gt = load_checked(job, classes)
+    args = (pred_sem, pred, sem_gt, gt)
     kw = {"num_classes": classes.num_classes, "ignore": (IGNORE,), "min_points": min_points}
     stats = panoptic_stats(*args, **kw)
     ranges = None
