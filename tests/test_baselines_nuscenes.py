@@ -153,7 +153,7 @@ def test_paper_mode_matches_devkit_geometry_and_scores(world, tmp_path):
 
 def _eval(root: Path, pred: Path, out: Path) -> dict:
     argv = ["eval", "nuscenes", "--dataroot", str(root), "--version", VERSION, "--result-path",
-            str(pred), "--eval-set", EVAL_SET, "--min-inst-points", "1", "--output", str(out)]  # fmt: skip
+            str(pred), "--eval-set", EVAL_SET, "--min-inst-points", "1", "--output", str(out), "--overwrite"]  # fmt: skip
     assert main(argv) == 0
     return json.loads((out / "scores.json").read_text())
 
@@ -184,14 +184,14 @@ def test_centers_cluster_eval_nuscenes(world, tmp_path):
     for method in (["bfs"], ["meanshift", "--bin-seeding", "--bandwidth", "0.65"]):
         argv = ["cluster", "nuscenes", "--dataset", root, "--version", VERSION, "--eval-set",
                 EVAL_SET, "--centers", str(centers), "--method", *method, "--min-points", "1",
-                "--output", str(pred)]  # fmt: skip
+                "--output", str(pred), "--overwrite"]  # fmt: skip
         assert main(argv) == 0
         classes = _eval(world["root"], pred, scores)["classes"]
         for name in PRESENT_THINGS:  # exact centres: every instance found, nothing else
             assert classes[name]["PQ"] == pytest.approx(1.0), (method, name)
     # noisy simulated regression still runs end to end and scores below 1
     assert main(["centers", "simulate", "--dataset", root, "--version", VERSION, "--eval-set",
-                 EVAL_SET, "--output", str(centers)]) == 0  # fmt: skip
+                 EVAL_SET, "--output", str(centers), "--overwrite"]) == 0  # fmt: skip
     assert main(argv) == 0
     classes = _eval(world["root"], pred, scores)["classes"]
     assert min(classes[name]["PQ"] for name in PRESENT_THINGS) < 1.0
