@@ -126,7 +126,13 @@ def nuscenes(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         profile=profile,
     )
-    print(f"wrote {args.scenes} scene(s) x {args.samples} sample(s) of {args.version} to {root}")
+    from panoptic_bench.datasets.nuscenes_spec import synthetic_scene_plan
+
+    complete = ", ".join(synthetic_scene_plan(args.version, args.scenes)[1])
+    print(
+        f"wrote {args.scenes} scene(s) x {args.samples} sample(s) of {args.version} to {root}; "
+        f"complete devkit split(s): {complete}"
+    )
     return 0
 
 

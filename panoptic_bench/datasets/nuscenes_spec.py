@@ -163,3 +163,47 @@ def _valid_scene_names(version: str) -> set[str]:
     for split in _SPLITS_OF_VERSION[version_kind(version)]:
         names.update(scene_names(version, split))
     return names
+
+
+def synthetic_scene_plan(version: str, n: int) -> tuple[list[str], list[str]]:
+    """Scene names for ``n`` synthetic scenes such that at least one devkit split is complete.
+
+    The splits of the version are filled whole, smallest first (``v1.0-mini``: the 2 scenes of
+    ``mini_val``, then the 8 of ``mini_train``), so the devkit's
+    ``get_samples_in_panoptic_eval_set`` and the tracking evaluator find every scene of the
+    completed splits.
+
+    Parameters
+    ----------
+    version : str
+        E.g. ``"v1.0-mini"``.
+    n : int
+        Number of scenes.
+
+    Returns
+    -------
+    (list of str, list of str)
+        The ``n`` scene names, and the devkit splits they complete (never empty).
+
+    Raises
+    ------
+    InputError
+        If ``n`` is smaller than the smallest split or larger than all scene names of the version.
+    """
+    kind = version_kind(version)
+    splits = sorted(_SPLITS_OF_VERSION[kind], key=lambda s: (len(scene_names(version, s)), s))
+    names: list[str] = []
+    for split in splits:
+        names.extend(x for x in scene_names(version, split) if x not in names)
+    smallest = splits[0]
+    need = len(scene_names(version, smallest))
+    if n < need:
+        raise InputError(
+            f"--scenes {n}: the smallest devkit split of {version} is {smallest} with {need} "
+            f"scenes; use --scenes >= {need} so that a split is complete"
+        )
+    if n > len(names):
+        raise InputError(f"--scenes {n} exceeds the {len(names)} scene names of {version}")
+    chosen = names[:n]
+    complete = [s for s in splits if set(scene_names(version, s)) <= set(chosen)]
+    return chosen, complete

@@ -247,19 +247,10 @@ def _nus_sample(seq: Sequence, frame: Frame, scene_name: str, stamp: int, lut: n
 
 
 def _nus_scene_names(version: str, n: int) -> list[str]:
-    from panoptic_bench.datasets.nuscenes import scene_names, version_kind
+    """Scene names filling whole devkit splits, smallest first (see ``synthetic_scene_plan``)."""
+    from panoptic_bench.datasets.nuscenes_spec import synthetic_scene_plan
 
-    kind = version_kind(version)
-    splits = {"mini": ("mini_train", "mini_val"), "trainval": ("train", "val"), "test": ("test",)}[
-        kind
-    ]
-    lists = [scene_names(version, s) for s in splits]
-    names: list[str] = []
-    for i in range(max(len(x) for x in lists)):
-        names.extend(x[i] for x in lists if i < len(x))
-    if n > len(names):
-        raise InputError(f"--scenes {n} exceeds the {len(names)} scene names of {version}")
-    return names[:n]
+    return synthetic_scene_plan(version, n)[0]
 
 
 def generate_nuscenes(
