@@ -38,3 +38,19 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="session")
+def hostile_kitti(tmp_path_factory) -> dict:
+    """Tiny SemanticKITTI world of the hostile-input suite (tests/hostile_world.py); read only."""
+    from hostile_world import kitti_world
+
+    return kitti_world(tmp_path_factory.mktemp("hostile-kitti"))
+
+
+@pytest.fixture(scope="session")
+def hostile_nuscenes(tmp_path_factory) -> dict:
+    """Tiny nuScenes dataroot with labels and perfect predictions (tests/hostile_world.py)."""
+    from hostile_world import nuscenes_world
+
+    return nuscenes_world(tmp_path_factory.mktemp("hostile-nus"))
