@@ -182,7 +182,12 @@ class AugmentConfig:
     """Training augmentation (Cylinder3D / DS-Net defaults).
 
     ``max_points`` > 0 keeps a random subset of at most that many points of each training scan
-    (a CPU speed-up; 0 keeps every point, as the paper).
+    (a CPU speed-up; 0 keeps every point, as the paper); see ``inference.match_training_density``
+    and :mod:`panoptic_bench.dsnet.data.density` for the shared policy.
+
+    Remission (off by default): ``remission_gamma`` and ``remission_gain`` ranges (per scan,
+    ``r' = clip(gain * r ** gamma, 0, 1)``) and ``remission_zero_prob`` (per point, set to 0).
+    Pose (off by default): ``pitch_std_deg`` / ``roll_std_deg`` of a random sensor tilt.
     """
 
     rotate: bool = True
@@ -190,6 +195,11 @@ class AugmentConfig:
     scale_range: tuple[float, float] = (0.95, 1.05)
     translate_std: tuple[float, float, float] = (0.1, 0.1, 0.1)
     max_points: int = 0
+    remission_gain: tuple[float, float] = (1.0, 1.0)
+    remission_gamma: tuple[float, float] = (1.0, 1.0)
+    remission_zero_prob: float = 0.0
+    pitch_std_deg: float = 0.0
+    roll_std_deg: float = 0.0
 
     def validate(self) -> list[str]:
         lo, hi = self.scale_range
@@ -198,6 +208,14 @@ class AugmentConfig:
         )
         if self.max_points < 0:
             problems.append("augment.max_points must be >= 0 (0 = keep every point)")
+        for name in ("remission_gain", "remission_gamma"):
+            lo, hi = getattr(self, name)
+            if not 0 < lo <= hi:
+                problems.append(f"augment.{name} must be 0 < lo <= hi, got {[lo, hi]}")
+        if not 0.0 <= self.remission_zero_prob < 1.0:
+            problems.append("augment.remission_zero_prob must be in [0, 1)")
+        if self.pitch_std_deg < 0 or self.roll_std_deg < 0:
+            problems.append("augment.pitch_std_deg and roll_std_deg must be >= 0")
         return problems
 
 
@@ -239,7 +257,11 @@ class DynamicShiftConfig:
 
 @dataclass(frozen=True)
 class InferenceConfig:
-    """Clustering of regressed centres at inference and the panoptic assembly."""
+    """Clustering of regressed centres at inference and the panoptic assembly.
+
+    ``match_training_density`` predicts each scan at the training density (``augment.max_points``
+    points, :mod:`panoptic_bench.dsnet.data.density`) and spreads the prediction to every point.
+    """
 
     clusterer: Clusterer = Clusterer.MEANSHIFT
     bandwidth: float = 1.2
@@ -247,6 +269,7 @@ class InferenceConfig:
     ds_bandwidth: float = 0.65
     min_points: int = 50
     fusion: bool = True
+    match_training_density: bool = False
 
     def validate(self) -> list[str]:
         problems = []

@@ -83,3 +83,63 @@ def augment_points(
         at = torch.as_tensor(a, dtype=xyz.dtype, device=xyz.device)
         return xyz @ at.T + torch.as_tensor(t, dtype=xyz.dtype, device=xyz.device)
     return (xyz @ a.T + t).astype(xyz.dtype, copy=False)
+
+
+def augment_remission(
+    remission: np.ndarray,
+    rng: np.random.Generator,
+    gain: tuple[float, float] = (1.0, 1.0),
+    gamma: tuple[float, float] = (1.0, 1.0),
+    zero_prob: float = 0.0,
+) -> np.ndarray:
+    """Remission augmentation: ``clip(gain * r ** gamma, 0, 1)``, then random zeroing.
+
+    ``gain`` ~ U[gain], ``gamma`` ~ U[gamma] per scan; each point is set to exactly 0 with
+    probability ``zero_prob`` (real sensors record dark, far and grazing returns as 0).
+    Draws nothing for an identity setting, so disabled augmentation leaves the stream unchanged.
+
+    Parameters
+    ----------
+    remission : ndarray of shape (n,), float32
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray of shape (n,), float32
+    """
+    out = remission.astype(np.float32, copy=True)
+    if tuple(gamma) != (1.0, 1.0):
+        out = np.power(np.clip(out, 0.0, None), rng.uniform(*gamma)).astype(np.float32)
+    if tuple(gain) != (1.0, 1.0):
+        out = np.clip(out * rng.uniform(*gain), 0.0, 1.0).astype(np.float32)
+    if zero_prob > 0:
+        out[rng.random(out.size) < zero_prob] = 0.0
+    return out
+
+
+def tilt_points(
+    xyz: np.ndarray, rng: np.random.Generator, pitch_std_deg: float = 0.0, roll_std_deg: float = 0.0
+) -> np.ndarray:
+    """Pose augmentation: rotate a scan by a random pitch (about y) and roll (about x).
+
+    Angles ~ N(0, std) degrees; draws nothing when both stds are 0.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (n, 3), float32
+
+    Returns
+    -------
+    ndarray of shape (n, 3), same dtype
+    """
+    if pitch_std_deg <= 0 and roll_std_deg <= 0:
+        return xyz
+    p = math.radians(rng.normal(0.0, pitch_std_deg)) if pitch_std_deg > 0 else 0.0
+    r = math.radians(rng.normal(0.0, roll_std_deg)) if roll_std_deg > 0 else 0.0
+    ry = np.array(
+        [[math.cos(p), 0.0, math.sin(p)], [0.0, 1.0, 0.0], [-math.sin(p), 0.0, math.cos(p)]]
+    )
+    rx = np.array(
+        [[1.0, 0.0, 0.0], [0.0, math.cos(r), -math.sin(r)], [0.0, math.sin(r), math.cos(r)]]
+    )
+    return (xyz @ (ry @ rx).T).astype(xyz.dtype, copy=False)

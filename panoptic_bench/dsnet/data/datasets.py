@@ -19,7 +19,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
-from panoptic_bench.dsnet.data.augment import augment_points
+from panoptic_bench.dsnet.data.augment import augment_points, augment_remission, tilt_points
+from panoptic_bench.dsnet.data.density import thin
 from panoptic_bench.errors import InputError
 
 __all__ = [
@@ -306,23 +307,24 @@ class TrainingSet:
     def __getitem__(self, index: int) -> LidarSample:
         sample = self.dataset.load(index)
         if self.augment is not None:
+            aug = self.augment
             rng = np.random.default_rng([self.seed, self.epoch, index])
-            if 0 < self.augment.max_points < len(sample.xyz):
-                keep = np.sort(rng.choice(len(sample.xyz), self.augment.max_points, replace=False))
-                sample = LidarSample(
-                    sample.xyz[keep],
-                    sample.remission[keep],
-                    sample.sem[keep],
-                    sample.inst[keep],
-                    sample.key,
-                )
+            sample, _ = thin(sample, aug.max_points, rng)
             sample.xyz = augment_points(
                 sample.xyz,
                 rng,
-                rotate=self.augment.rotate,
-                flip=self.augment.flip,
-                scale_range=self.augment.scale_range,
-                translate_std=self.augment.translate_std,
+                rotate=aug.rotate,
+                flip=aug.flip,
+                scale_range=aug.scale_range,
+                translate_std=aug.translate_std,
+            )
+            sample.xyz = tilt_points(sample.xyz, rng, aug.pitch_std_deg, aug.roll_std_deg)
+            sample.remission = augment_remission(
+                sample.remission,
+                rng,
+                aug.remission_gain,
+                aug.remission_gamma,
+                aug.remission_zero_prob,
             )
         return sample
 

@@ -1,0 +1,167 @@
+"""Remission / pose augmentation and the shared point-density policy (issue 13, training side)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from panoptic_bench.dsnet.config import AugmentConfig, DSNetConfig
+from panoptic_bench.dsnet.data.augment import augment_remission, tilt_points
+from panoptic_bench.dsnet.data.datasets import LidarSample, TrainingSet
+from panoptic_bench.dsnet.data.density import (
+    DensityMatchedPredictor,
+    density_seed,
+    nearest_kept,
+    predict_at_density,
+    thin_indices,
+    with_density_policy,
+)
+from panoptic_bench.errors import InputError
+
+
+def _state(rng: np.random.Generator) -> dict:
+    return rng.bit_generator.state
+
+
+def test_disabled_augmentations_draw_nothing_and_change_nothing():
+    rng = np.random.default_rng(3)
+    before = _state(rng)
+    rem = np.linspace(0, 1, 11, dtype=np.float32)
+    np.testing.assert_array_equal(augment_remission(rem, rng), rem)
+    xyz = np.random.default_rng(0).normal(size=(20, 3)).astype(np.float32)
+    assert tilt_points(xyz, rng) is xyz
+    assert thin_indices(100, 0, rng) is None and thin_indices(100, 100, rng) is None
+    assert _state(rng) == before
+
+
+def test_remission_gain_gamma_zeroing():
+    rem = np.full(10_000, 0.25, np.float32)
+    out = augment_remission(rem, np.random.default_rng(1), gamma=(0.5, 0.5))
+    np.testing.assert_allclose(out, 0.5, rtol=1e-6)
+    out = augment_remission(rem, np.random.default_rng(1), gain=(2.0, 2.0))
+    np.testing.assert_allclose(out, 0.5, rtol=1e-6)
+    out = augment_remission(np.full(10, 0.8, np.float32), np.random.default_rng(1), gain=(2.0, 2.0))
+    assert out.max() == 1.0
+    out = augment_remission(rem, np.random.default_rng(1), zero_prob=0.3)
+    assert 0.27 < (out == 0).mean() < 0.33 and set(np.unique(out)) == {0.0, 0.25}
+    assert out.dtype == np.float32
+
+
+def test_tilt_is_a_rotation_and_tilts():
+    xyz = np.random.default_rng(0).normal(size=(500, 3)) * 10
+    out = tilt_points(xyz, np.random.default_rng(4), pitch_std_deg=2.0, roll_std_deg=2.0)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), np.linalg.norm(xyz, axis=1))
+    assert not np.allclose(out[:, 2], xyz[:, 2])
+    # a flat ground plane becomes a tilted plane
+    plane = np.column_stack([xyz[:, 0], xyz[:, 1], np.full(500, -1.7)])
+    tilted = tilt_points(plane, np.random.default_rng(4), pitch_std_deg=2.0)
+    a = np.linalg.lstsq(np.column_stack([tilted[:, :2], np.ones(500)]), tilted[:, 2], rcond=None)[0]
+    assert abs(a[0]) > 1e-3 and abs(a[1]) < 1e-9
+
+
+def test_config_keys_round_trip_and_validate():
+    cfg = DSNetConfig.from_dict(
+        {
+            "augment": {
+                "remission_gain": [0.8, 1.2],
+                "remission_gamma": [0.7, 1.4],
+                "remission_zero_prob": 0.05,
+                "pitch_std_deg": 1.0,
+                "roll_std_deg": 1.5,
+            },
+            "inference": {"match_training_density": True},
+        }
+    )
+    assert DSNetConfig.from_dict(cfg.to_dict()) == cfg
+    assert DSNetConfig().augment.remission_zero_prob == 0.0
+    assert DSNetConfig().inference.match_training_density is False
+    for bad, key in (
+        ({"remission_gain": [1.2, 0.8]}, "remission_gain"),
+        ({"remission_zero_prob": 1.0}, "remission_zero_prob"),
+        ({"pitch_std_deg": -1.0}, "pitch_std_deg"),
+    ):
+        with pytest.raises(InputError, match=key):
+            DSNetConfig.from_dict({"augment": bad})
+
+
+class _Data:
+    def __init__(self, n: int = 3000) -> None:
+        rng = np.random.default_rng(0)
+        self.sample = LidarSample(
+            rng.normal(size=(n, 3)).astype(np.float32) * 10,
+            rng.random(n).astype(np.float32),
+            rng.integers(1, 5, n),
+            np.zeros(n, np.int64),
+            ("00", "000000"),
+        )
+
+    def __len__(self) -> int:
+        return 1
+
+    def load(self, index: int) -> LidarSample:
+        s = self.sample
+        return LidarSample(s.xyz.copy(), s.remission.copy(), s.sem.copy(), s.inst.copy(), s.key)
+
+
+def test_training_set_remission_augmentation_leaves_geometry_stream_alone():
+    base = AugmentConfig(max_points=1000)
+    rem_aug = dataclasses.replace(base, remission_gain=(0.5, 1.5), remission_zero_prob=0.1)
+    a, b = TrainingSet(_Data(), base, seed=2)[0], TrainingSet(_Data(), rem_aug, seed=2)[0]
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    np.testing.assert_array_equal(a.sem, b.sem)
+    assert len(a.xyz) == 1000 and not np.array_equal(a.remission, b.remission)
+    assert (b.remission == 0).mean() > 0.05
+
+
+def test_density_policy_spreads_to_nearest_kept_point():
+    data = _Data()
+    sample = data.load(0)
+    keep = thin_indices(len(sample.xyz), 500, np.random.default_rng(0))
+    near = nearest_kept(sample.xyz, keep)
+    np.testing.assert_array_equal(near[keep], np.arange(500))
+    d_near = np.linalg.norm(sample.xyz - sample.xyz[keep][near], axis=1)
+    d_brute = np.linalg.norm(sample.xyz[:, None] - sample.xyz[keep][None], axis=2).min(1)
+    np.testing.assert_allclose(d_near, d_brute, rtol=1e-6)
+
+    @dataclasses.dataclass
+    class Pred:
+        sem: np.ndarray
+        inst: np.ndarray
+        sem_raw: np.ndarray
+        offsets: np.ndarray
+        features: np.ndarray | None = None
+
+    seen = []
+
+    def predict(s, panoptic=True):
+        seen.append(len(s.xyz))
+        idx = np.arange(len(s.xyz))
+        return Pred(idx, idx % 7, (idx % 3).astype(np.uint8), s.xyz.copy())
+
+    out = predict_at_density(predict, sample, 500)
+    assert seen == [500] and len(out.sem) == len(sample.xyz)
+    used = thin_indices(len(sample.xyz), 500, np.random.default_rng(density_seed(sample.key)))
+    d_brute = np.linalg.norm(sample.xyz[:, None] - sample.xyz[used][None], axis=2).min(1)
+    # every point carries the prediction (here: the offsets = xyz) of its nearest kept point
+    np.testing.assert_allclose(
+        np.linalg.norm(out.offsets - sample.xyz, axis=1), d_brute, rtol=1e-5, atol=1e-6
+    )
+    again = predict_at_density(predict, data.load(0), 500)
+    np.testing.assert_array_equal(again.sem, out.sem)  # the subset is seeded by the scan key
+
+    class Host:
+        cfg = DSNetConfig.from_dict(
+            {"augment": {"max_points": 500}, "inference": {"match_training_density": True}}
+        )
+
+        def predict(self, s, panoptic=True):
+            return predict(s, panoptic)
+
+    wrapped = with_density_policy(Host())
+    assert isinstance(wrapped, DensityMatchedPredictor) and wrapped.cfg is Host.cfg
+    assert len(wrapped.predict(sample).sem) == len(sample.xyz)
+    plain = Host()
+    plain.cfg = DSNetConfig()
+    assert with_density_policy(plain) is plain
