@@ -40,6 +40,13 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
         metavar="EDGES",
         help="also score per range bin, comma-separated edges in metres, e.g. 0,10,20,30,50",
     )
+    p.add_argument(
+        "--task",
+        choices=["segmentation", "tracking"],
+        default="segmentation",
+        help="segmentation (PQ ...) or tracking (PAT, PTQ, LSTQ, MOTSA ... plus segmentation); "
+        "meta.task of RES/<eval-set>/submission.json wins, as in the devkit",
+    )
     p.add_argument("--workers", type=ca.workers, default=1, help="worker processes (default 1)")
     p.add_argument("--output", required=True, help="output directory")
     ca.add_overwrite(p, "the --output directory")
@@ -72,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--by-range: {exc}") from None
     inputs = (args.dataroot, f"{args.result_path}/panoptic")
     check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
+    task = submission_task(args.result_path, args.eval_set) or args.task
+    if task == "tracking":
+        return _run_tracking(args, inputs, edges)
     evaluation = evaluate_nuscenes(
         args.dataroot,
         args.version,
@@ -85,4 +95,51 @@ def run(args: argparse.Namespace) -> int:
         scores = write_nuscenes_result(evaluation, tmp, inputs=inputs)
     print(percent_table(scores), end="")
     print(f"{evaluation.n_samples} samples of {args.eval_set}; results written to {args.output}")
+    return 0
+
+
+def submission_task(result_path: str, eval_set: str) -> str | None:
+    """``meta.task`` of ``RES/<eval_set>/submission.json`` (where the devkit reads it), if any."""
+    import json
+    from pathlib import Path
+
+    from panoptic_bench.errors import InputError
+
+    path = Path(result_path) / eval_set / "submission.json"
+    if not path.is_file():
+        return None
+    try:
+        meta = json.loads(path.read_text()).get("meta", {})
+    except (OSError, ValueError, AttributeError) as exc:
+        raise InputError(f"cannot read submission.json ({exc})", path) from None
+    task = meta.get("task") if isinstance(meta, dict) else None
+    if task is not None and task not in ("segmentation", "tracking"):
+        raise InputError(f"meta.task must be segmentation or tracking, got {task!r}", path)
+    return task
+
+
+def _run_tracking(args: argparse.Namespace, inputs: tuple, edges) -> int:
+    from panoptic_bench.errors import InputError
+    from panoptic_bench.evaluation.nuscenes_tracking import evaluate_nuscenes_tracking
+    from panoptic_bench.io import output_tree
+
+    if edges is not None:
+        raise InputError("--by-range is available for --task segmentation only")
+    ev = evaluate_nuscenes_tracking(
+        args.dataroot,
+        args.version,
+        args.result_path,
+        args.eval_set,
+        min_inst_points=args.min_inst_points,
+        workers=args.workers,
+    )
+    with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
+        scores = ev.write(tmp, inputs=inputs)
+    t = scores["tracking"]["all"]
+    cells = [f"{k} {'nan' if t[k] is None else f'{100 * t[k]:.2f}'}" for k in t]
+    print("tracking (%): " + ", ".join(cells))
+    print(
+        f"{ev.segmentation.n_samples} samples in {ev.n_scenes} scenes of {args.eval_set}; "
+        f"results written to {args.output}"
+    )
     return 0
