@@ -28,11 +28,14 @@ def parse_scan(text: str) -> tuple[str, str]:
     return f"{int(m.group(1)):02d}", f"{int(m.group(2)):06d}"
 
 
-def _centres(path: Path, xyz: np.ndarray, n: int, num_classes: int) -> np.ndarray:
+def _centres(path: Path, xyz: np.ndarray, classes: ViewClasses) -> np.ndarray:
+    """Regressed centres of the points the centre file calls things; NaN rows elsewhere."""
     from panoptic_bench.baselines.centers import read_centers
 
-    cen = read_centers(path, n_points=n, num_classes=num_classes)
-    return cen.centers(xyz).astype(np.float32)
+    cen = read_centers(path, n_points=len(xyz), num_classes=classes.num_classes)
+    out = cen.centers(xyz).astype(np.float32)
+    out[~np.isin(cen.sem, classes.things)] = np.nan
+    return out
 
 
 def load_semantickitti(
@@ -90,7 +93,7 @@ def load_semantickitti(
     cen = None
     if centers is not None:
         path = centers_path_semantickitti(centers, seq, frame)
-        cen = _centres(path, xyz, n, classes.num_classes)
+        cen = _centres(path, xyz, classes)
     view = ViewScan(
         name=f"{seq}/{frame}",
         xyz=xyz.astype(np.float32),
@@ -194,6 +197,6 @@ def load_nuscenes(
     xyz = points[:, :3].astype(np.float32)
     cen = None
     if centers is not None:
-        cen = _centres(centers_path_nuscenes(centers, token), xyz, n, classes.num_classes)
+        cen = _centres(centers_path_nuscenes(centers, token), xyz, classes)
     view = ViewScan(token, xyz, pred_sem, pred, gt_sem, gt, cen)
     return view, classes

@@ -116,8 +116,7 @@ def scan_arrays(
         arrays[f"s{k}_{side}_colour"] = col.astype(np.int32)
     if scan.centres is not None:
         centres = np.asarray(scan.centres, dtype=np.float64)[idx]
-        things = np.isin(np.asarray(scan.pred_sem)[idx], classes.things)
-        centres = centres[things & np.isfinite(centres).all(axis=1)]
+        centres = centres[np.isfinite(centres).all(axis=1)]
         arrays[f"s{k}_centres"] = np.rint(np.clip(centres / scale, -_INT16_MAX, _INT16_MAX)).astype(
             np.int16
         )
