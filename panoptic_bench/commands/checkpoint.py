@@ -23,6 +23,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     exp.add_argument("--half", action="store_true", help="store weights as float16")
     exp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     exp.set_defaults(func=export_handler)
+    imp = sub.add_parser(
+        "import-dsnet",
+        help="convert an official DS-Net checkpoint (sem_pretrain / offset_pretrain / dsnet_pretrain)",
+        description="Read a checkpoint of the official DS-Net code (a dict with model_state or a "
+        "bare state dict), detect its training step, map and reshape every tensor onto the "
+        "official network of panoptic-bench and write one of our checkpoints.",
+    )
+    imp.add_argument("src", help="official .pth file")
+    imp.add_argument("--out", required=True, help="destination .pt (written only on success)")
+    imp.add_argument("--print-map", action="store_true", help="print the key mapping")
+    imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    imp.set_defaults(func=import_handler)
 
 
 def show_handler(args: argparse.Namespace) -> int:
@@ -57,4 +69,19 @@ def export_handler(args: argparse.Namespace) -> int:
     check_output_file(args.out, overwrite=args.overwrite, inputs=(args.checkpoint,))
     out = export_checkpoint(args.checkpoint, args.out, half=args.half)
     print(f"{out} ({Path(out).stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def import_handler(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from panoptic_bench.dsnet.official.convert import import_official
+    from panoptic_bench.io import check_output_file
+
+    check_output_file(args.out, overwrite=args.overwrite, inputs=(args.src,))
+    out, res = import_official(args.src, args.out, print_map=args.print_map)
+    print(
+        f"{out}: official step {res.step} -> stage {'semantic offset ds'.split()[res.step - 1]}, "
+        f"{len(res.rows)} tensors ({Path(out).stat().st_size / 1e6:.1f} MB)"
+    )
     return 0

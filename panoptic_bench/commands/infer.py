@@ -20,7 +20,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "shift 1.2 + consensus fusion); --clusterer swaps the clustering, fed the same centres."
         ),
     )
-    p.add_argument("--checkpoint", required=True, help="checkpoint written by `train`")
+    p.add_argument(
+        "--checkpoint",
+        required=True,
+        help="checkpoint written by `train` or `checkpoint import-dsnet`, or a shipped name: "
+        "synthetic, synthetic-backbone, semantickitti-cpu, semantickitti-cpu-backbone, "
+        "nuscenes-synthetic",
+    )
     p.add_argument("--data", required=True, help="dataset root")
     p.add_argument(
         "--split", help="split name (valid, val, mini_val...) or sequences (08 or 00,01)"
@@ -62,12 +68,15 @@ def handler(args: argparse.Namespace) -> int:
 
     if args.bandwidth is not None and not args.bandwidth > 0:
         raise InputError(f"--bandwidth must be > 0, got {args.bandwidth}")
+    from panoptic_bench.dsnet.checkpoint import resolve_checkpoint
+
+    checkpoint = resolve_checkpoint(args.checkpoint)
     split = _split(args)
     if args.threads:
         torch.set_num_threads(args.threads)
     with output_tree(args.out, overwrite=args.overwrite, inputs=(args.data,)) as tmp:
         summary = run_inference(
-            args.checkpoint,
+            checkpoint,
             args.data,
             split,
             tmp,

@@ -39,9 +39,61 @@ __all__ = [
     "build_shift",
     "export_checkpoint",
     "is_official",
+    "resolve_checkpoint",
+    "shipped_checkpoints",
+    "SHIPPED",
     "load_checkpoint",
     "save_checkpoint",
 ]
+
+
+#: Short name -> file in ``panoptic_bench/checkpoints/`` of every checkpoint a release may ship.
+SHIPPED: dict[str, str] = {
+    "synthetic": "dsnet_synthetic.pt",
+    "synthetic-backbone": "backbone_synthetic.pt",
+    "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
+    "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
+    "nuscenes-synthetic": "dsnet_nuscenes_synthetic.pt",
+}
+
+
+def _shipped_dir() -> Path:
+    from importlib import resources
+
+    return Path(str(resources.files("panoptic_bench"))) / "checkpoints"
+
+
+def shipped_checkpoints() -> dict[str, Path]:
+    """Short name -> path of the shipped checkpoints present in this install."""
+    return {n: _shipped_dir() / f for n, f in SHIPPED.items() if (_shipped_dir() / f).is_file()}
+
+
+def resolve_checkpoint(name_or_path: str | Path) -> Path:
+    """The checkpoint file of a short name (:data:`SHIPPED`) or a path.
+
+    Raises
+    ------
+    InputError
+        A known name whose file is not shipped, or an unknown name that is not a file; the
+        message lists the shipped names.
+    """
+    text = str(name_or_path)
+    present = ", ".join(shipped_checkpoints()) or "none"
+    if text in SHIPPED:
+        path = _shipped_dir() / SHIPPED[text]
+        if not path.is_file():
+            raise InputError(
+                f"checkpoint {text!r} ({SHIPPED[text]}) is not shipped with this install; "
+                f"shipped: {present}"
+            )
+        return path
+    path = Path(text)
+    if not path.exists() and path.suffix == "" and "/" not in text:
+        raise InputError(
+            f"unknown checkpoint name {text!r}: shipped names are {present} "
+            f"(known names: {', '.join(SHIPPED)}); or give a .pt path"
+        )
+    return path
 
 
 def build_grid(cfg: DSNetConfig) -> Any:

@@ -12,6 +12,10 @@
      receives exactly the same regressed centres;
 3. consensus fusion (majority vote of the semantic class inside every instance), unless disabled.
    "Backbone with Fusion" = mean shift 1.2 + fusion.
+
+With ``model.variant: official`` the rules of the official DS-Net code apply instead
+(:mod:`panoptic_bench.dsnet.inference.official`): argmax over all classes, no instance size
+filter, DS seeds by FPS on xyz and nearest seed by xyz.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import torch
 from torch import nn
 
 from panoptic_bench.dsnet import distributed as ddp
-from panoptic_bench.dsnet.checkpoint import build_grid
+from panoptic_bench.dsnet.checkpoint import build_grid, is_official
 from panoptic_bench.dsnet.config import DSNetConfig
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, LidarSample
 from panoptic_bench.dsnet.inference.clustering import make_clusterer
@@ -107,6 +111,7 @@ class Predictor:
         self.grid = build_grid(cfg)
         self._things = class_map.thing_lut()
         self._ignored = list(class_map.ignore_ids)
+        self.official = is_official(cfg)
 
     @torch.no_grad()
     def predict(self, sample: LidarSample, panoptic: bool = True) -> ScanPrediction:
@@ -115,8 +120,10 @@ class Predictor:
 
         self.backbone.eval()
         out = backbone_forward(self.backbone, [sample], self.grid, self.device)
-        logits = out.sem_logits.clone()
-        logits[:, self._ignored] = -torch.inf
+        logits = out.sem_logits
+        if not self.official:  # the official code's argmax runs over every class
+            logits = logits.clone()
+            logits[:, self._ignored] = -torch.inf
         sem = logits.argmax(1).cpu().numpy().astype(np.int64)
         offsets = out.offsets.float().cpu().numpy()
         fused, inst, diag = sem, np.zeros(len(sem), dtype=np.int64), None
@@ -127,7 +134,7 @@ class Predictor:
                 offsets,
                 self.clusterer,
                 thing_ids=self.class_map.thing_ids,
-                min_points=self.cfg.inference.min_points,
+                min_points=0 if self.official else self.cfg.inference.min_points,
                 fusion=self.fusion,
                 num_classes=self.class_map.num_classes,
             )
@@ -154,6 +161,8 @@ class Predictor:
         if not len(things):
             return sem, inst, None
         self.shift.eval()
+        if self.official:
+            return self._official_shift(sample, sem, offsets, features, things)
         labels, diag = ds_cluster(
             self.shift,
             points=sample.xyz[things],
@@ -169,6 +178,28 @@ class Predictor:
         )
         fused = consensus_fusion(sem, inst, self.class_map.num_classes) if self.fusion else sem
         return fused, inst, diag
+
+    def _official_shift(self, sample, sem, offsets, features, things):
+        """DS path by the official rules (:mod:`~panoptic_bench.dsnet.inference.official`)."""
+        from panoptic_bench.baselines.panoptic import consensus_fusion
+        from panoptic_bench.dsnet.inference.clustering import make_clusterer
+        from panoptic_bench.dsnet.inference.official import official_shift_instances
+
+        inf = self.cfg.inference
+        labels, diag = official_shift_instances(
+            self.shift,
+            sample.xyz[things],
+            sample.xyz[things] + offsets[things],
+            features[torch.from_numpy(things).to(features.device)],
+            make_clusterer(inf.ds_clusterer, inf.ds_bandwidth),
+            self.cfg.dynamic_shift.max_seeds,
+        )
+        inst = np.zeros(len(sem), dtype=np.int64)
+        inst[things] = np.maximum(labels, 0)
+        fused = consensus_fusion(sem, inst, self.class_map.num_classes) if self.fusion else sem
+        if diag:
+            diag["candidates"] = np.asarray(self.cfg.dynamic_shift.bandwidths, dtype=np.float32)
+        return fused, inst, diag or None
 
 
 def evaluate_dataset(

@@ -41,7 +41,14 @@ from panoptic_bench.dsnet.inference.predictor import Predictor, ScanPrediction
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import ensure_output_dir, write_json, write_npz
 
-__all__ = ["InferenceSummary", "load_predictor", "open_split", "run_inference"]
+__all__ = [
+    "InferenceSummary",
+    "check_fits",
+    "load_predictor",
+    "open_split",
+    "root_format",
+    "run_inference",
+]
 
 
 @dataclass
@@ -102,6 +109,36 @@ def load_predictor(
     return pred, ckpt
 
 
+def root_format(root: str | Path) -> DatasetFormat | None:
+    """SemanticKITTI (``sequences/``) or nuScenes (``v1.0-*/`` or ``samples/``) root, or None."""
+    root = Path(root)
+    if (root / "sequences").is_dir():
+        return DatasetFormat.SEMANTICKITTI
+    if (root / "samples").is_dir() or any(root.glob("v1.0-*")):
+        return DatasetFormat.NUSCENES
+    return None
+
+
+def check_fits(ckpt: Checkpoint, root: str | Path) -> None:
+    """A checkpoint's class map must fit the data root's dataset.
+
+    Raises
+    ------
+    InputError
+        E.g. a nuScenes model on a SemanticKITTI root, naming both.
+    """
+    kind = root_format(root)
+    want = ckpt.config.data.format
+    if kind is not None and kind is not want:
+        cmap = ckpt.class_map
+        raise InputError(
+            f"checkpoint {ckpt.path} is a {cmap.dataset} model ({cmap.num_classes} classes) "
+            f"but {root} is a {kind.value} root; its class map does not fit: use a "
+            f"{kind.value} checkpoint",
+            root,
+        )
+
+
 def open_split(
     cfg: DSNetConfig, root: str | Path, split: str, max_samples: int = 0
 ) -> LidarDataset:
@@ -157,6 +194,7 @@ def run_inference(
         device=device,
         keep_features=save_features,
     )
+    check_fits(ckpt, data_root)
     dataset = open_split(ckpt.config, data_root, split, max_samples)
     if len(dataset) == 0:
         raise InputError(f"no scans in split {split!r}", data_root)
