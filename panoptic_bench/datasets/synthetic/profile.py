@@ -71,7 +71,8 @@ class WorldProfile:
       green areas above the road (m, empty = flat);
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
-      building, green, fence or plaza frontage per segment); ``parking_prob`` per segment;
+      building, green, fence or plaza frontage per segment); ``back_row_prob``: probability of
+      the second row of buildings behind a non-building frontage; ``parking_prob`` per segment;
     - object density: mean spacing (m) per side of pedestrian groups ``ped_spacing``, parked
       bicycles ``bike_spacing``, cyclists ``cyclist_spacing``; ``traffic_gap`` range (m);
       ``parked_fill``: fraction of parking strips filled with cars;
@@ -106,6 +107,7 @@ class WorldProfile:
     sidewalk: tuple[float, float] = (3.0, 5.5)
     green_depth: tuple[float, float] = (12.0, 22.0)
     frontage_p: tuple[float, float, float, float] = (0.38, 0.36, 0.14, 0.12)
+    back_row_prob: float = 1.0
     parking_prob: float = 0.45
     parked_fill: float = 1.0
     ped_spacing: float = 30.0
@@ -131,6 +133,7 @@ class WorldProfile:
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
             "parking_prob": 0.0 <= self.parking_prob <= 1.0,
             "parked_fill": 0.0 <= self.parked_fill <= 1.0,
+            "back_row_prob": 0.0 <= self.back_row_prob <= 1.0,
             "rem_dark_prob": 0.0 <= self.rem_dark_prob <= 1.0,
             "rem_dark_stuff": 0.0 <= self.rem_dark_stuff <= 1.0,
             "rem_zero_below": 0.0 <= self.rem_zero_below < 1.0,
@@ -246,16 +249,17 @@ REALISTIC = WorldProfile(
     shoulder=(0.2, 1.0),
     sidewalk=(2.0, 4.0),
     green_depth=(8.0, 20.0),
-    frontage_p=(0.25, 0.5, 0.13, 0.12),
+    frontage_p=(0.2, 0.55, 0.13, 0.12),
+    back_row_prob=0.4,
     parking_prob=0.3,
     parked_fill=0.45,
-    ped_spacing=120.0,
-    bike_spacing=150.0,
-    cyclist_spacing=200.0,
+    ped_spacing=250.0,
+    bike_spacing=250.0,
+    cyclist_spacing=600.0,
     traffic_gap=(60.0, 200.0),
     clutter_spacing=50.0,
     tree_spacing=6.0,
-    bush_spacing=3.0,
+    bush_spacing=2.0,
 )
 
 PROFILES = {"classic": CLASSIC, "realistic": REALISTIC}

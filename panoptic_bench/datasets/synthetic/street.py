@@ -194,7 +194,8 @@ def _segment(
             _tree(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0), z)
         for _ in range(rng.poisson(length / prof.bush_spacing)):
             _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
-    _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
+    if prof.back_row_prob >= 1.0 or rng.random() < prof.back_row_prob:
+        _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
 
 
 def curb_at(plan: StreetPlan, side: int, x: float) -> float:
