@@ -104,22 +104,18 @@ class SequenceTubes:
         return SequenceTubes(*parts)
 
 
-def _ids(name: str, arr: np.ndarray) -> np.ndarray:
+def _checked(name: str, arr: np.ndarray, limit: int, what: str) -> np.ndarray:
+    """``arr`` raveled, checked to be integers in [0, limit) (one pass for unsigned input)."""
     arr = np.asarray(arr).ravel()
     if not np.issubdtype(arr.dtype, np.integer):
         raise TypeError(f"{name} must be an integer array, got {arr.dtype}")
-    if arr.size and (arr.min() < 0 or arr.max() >= 1 << _ID_BITS):
-        raise ValueError(f"{name} holds instance ids outside [0, 2**16)")
-    return arr.astype(np.int64, copy=False)
-
-
-def _classes(name: str, arr: np.ndarray, num_classes: int) -> np.ndarray:
-    arr = np.asarray(arr).ravel()
-    if not np.issubdtype(arr.dtype, np.integer):
-        raise TypeError(f"{name} must be an integer array, got {arr.dtype}")
-    if arr.size and (arr.min() < 0 or arr.max() >= num_classes):
-        raise ValueError(f"{name} holds class ids outside [0, {num_classes})")
-    return arr.astype(np.int64, copy=False)
+    if arr.size:
+        signed = np.issubdtype(arr.dtype, np.signedinteger)
+        if arr.max() >= limit or (signed and arr.min() < 0):
+            raise ValueError(
+                f"{name} holds {what} outside [0, {limit if limit != 65536 else '2**16'})"
+            )
+    return arr
 
 
 def lstq_frame_stats(
@@ -159,17 +155,27 @@ def lstq_frame_stats(
     tubes : SequenceTubes
     """
     C = int(num_classes)
-    sp, sg = _classes("sem_pred", sem_pred, C), _classes("sem_gt", sem_gt, C)
-    ip, ig = _ids("inst_pred", inst_pred), _ids("inst_gt", inst_gt)
+    sp = _checked("sem_pred", sem_pred, C, "class ids")
+    sg = _checked("sem_gt", sem_gt, C, "class ids")
+    ip = _checked("inst_pred", inst_pred, 1 << _ID_BITS, "instance ids")
+    ig = _checked("inst_gt", inst_gt, 1 << _ID_BITS, "instance ids")
     if not (len(sp) == len(ip) == len(sg) == len(ig)):
         raise ValueError("the four label arrays must have the same length")
-    conf = np.bincount(sp * C + sg, minlength=C * C).reshape(C, C).astype(np.int64)
+    small = sp.dtype.itemsize == sg.dtype.itemsize == 1 and C * C <= 1 << 16
+    code = sp.astype(np.uint16 if small else np.int64)  # uint8 class ids: 2-byte arithmetic
+    code *= C
+    code += sg
+    conf = np.bincount(code, minlength=C * C).reshape(C, C).astype(np.int64)
     ignored = np.zeros(C, dtype=bool)
     ignored[list(ignore)] = True
     is_thing = np.zeros(C, dtype=bool)
     is_thing[list(things)] = True
-    keep = ~ignored[sg]
-    sp, sg, ip, ig = sp[keep], sg[keep], ip[keep], ig[keep]
+    # only points carrying an instance id on either side (and a non-ignored gt class) matter
+    sub = (ig > 0) | (ip > 0)
+    sub &= ~ignored[sg]
+    idx = np.flatnonzero(sub)
+    sp, sg = sp[idx].astype(np.int64), sg[idx].astype(np.int64)
+    ip, ig = ip[idx].astype(np.int64), ig[idx].astype(np.int64)
 
     corrected = mode is LSTQMode.CORRECTED
     gt_pt = ig > 0
@@ -181,8 +187,7 @@ def lstq_frame_stats(
     # per point: does it belong to a ground-truth segment that joins its tube in this frame?
     valid = np.zeros(len(sg), dtype=bool)
     if len(gkeys):
-        pos = np.searchsorted(gkeys, gt_key[gt_pt])
-        valid[gt_pt] = big[pos]
+        valid[gt_pt] = big[np.searchsorted(gkeys, gt_key[gt_pt])]
 
     if corrected:
         pred_pt = (ip > 0) & is_thing[sp] & ~(gt_pt & ~valid)

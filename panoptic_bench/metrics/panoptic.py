@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
 EPS = 1e-15
 _DENSE_CELL_LIMIT = 1 << 21  # count cells with a dense bincount below this many possible cells
@@ -71,6 +70,8 @@ def _count_cells(codes: np.ndarray, n_codes: int, sub: np.ndarray, n_sub: int):
     first[codes] = sub
     if np.array_equal(first[codes], sub):
         return np.arange(n_codes) * n_sub + first, np.bincount(codes, minlength=n_codes)
+    import pandas as pd  # lazy: importing pandas costs more than scoring a scan
+
     cells_codes, cells = pd.factorize(codes * n_sub + sub, sort=False, use_na_sentinel=False)
     return cells, np.bincount(cells_codes, minlength=len(cells))
 
@@ -144,6 +145,8 @@ def panoptic_stats(
     id_pair = np.empty((n, 2), dtype=np.uint32)  # (gt id, pred id) viewed as one uint64 key
     id_pair[:, 0] = ig
     id_pair[:, 1] = ip
+    import pandas as pd
+
     codes, pairs = pd.factorize(id_pair.view(np.uint64).ravel(), sort=False, use_na_sentinel=False)
     cc = C * C
     cells, cnt = _count_cells(codes, len(pairs), sp * C + sg, cc)
