@@ -59,10 +59,11 @@ def prepare_workspace(out: str | Path, work: str | Path | None) -> steps.Workspa
     return ws
 
 
-#: Run-directory files left out of the committed report sets: ``bev.npz`` (per-point arrays of
-#: a scan, drawn already) and the devkit-format ``segmentation-result.json``, whose PQ† sums in
-#: the devkit's hash-seed-dependent class order (``scores.json`` holds the same numbers).
-UNREPORTED_FILES = ("bev.npz", "segmentation-result.json")
+#: Run-directory files left out of the committed report sets: ``bev.npz`` and
+#: ``viewer_scans.npz`` (per-point arrays of scans, already drawn into the figure and the viewer
+#: pages) and the devkit-format ``segmentation-result.json``, whose PQ† sums in the devkit's
+#: hash-seed-dependent class order (``scores.json`` holds the same numbers).
+UNREPORTED_FILES = ("bev.npz", "segmentation-result.json", "viewer_scans.npz")
 
 
 def drop_unreported_files(runs: Sequence[Path]) -> None:
@@ -161,6 +162,7 @@ def run_demo(
     -------
     DemoResult
     """
+    from panoptic_bench.demo.viewer import write_demo_viewer
     from panoptic_bench.reports.index import build_report
 
     tmp = None if keep_work else tempfile.mkdtemp(prefix="panoptic-bench-demo-")
@@ -187,6 +189,8 @@ def run_demo(
                 bandwidth_scans=size.bandwidth_scans,
             )
             run_kitti_methods(ws, target, stages, result, workers, use_checkpoint)
+            with stages("viewer inputs: best and worst scan by PQ"):
+                write_demo_viewer(ws, target, result.runs)
         if "nuscenes" in parts:
             _nuscenes(ws, size, workers, stages, result)
         with stages("report: tables, figures, index.md"):

@@ -20,6 +20,9 @@ Inputs per run directory (see :mod:`panoptic_bench.reports.runs` for ``scores.js
 ``bev.npz`` (bird's-eye panoptic view): ``xyz`` (n, >=2) float, ``pred_sem``, ``pred_inst``,
 ``gt_sem``, ``gt_inst`` (n,) int, ``thing_classes`` (k,) int.
 
+``viewer_scans.npz`` (interactive viewer pages ``viewer/<run>.html`` of the best and the worst
+scan by PQ): see :mod:`panoptic_bench.viewer.report`.
+
 Figs. 4a/4b/4c are drawn from ``scores.json`` of runs whose ``run.json`` has ``ablation`` keys
 ``framework`` / ``clustering`` / ``bandwidth_learning``; PQ by range from ``by_range``.
 """
@@ -44,6 +47,7 @@ from panoptic_bench.reports import bev, figures
 from panoptic_bench.reports.render import to_markdown, write_table
 from panoptic_bench.reports.runs import ABLATION_KEYS, Run, load_runs
 from panoptic_bench.reports.tables import build_tables
+from panoptic_bench.viewer.report import viewer_markdown, viewer_pages
 
 ANALYSIS_FILE = "analysis.json"
 SHIFT_FILE = "shift_iterations.npz"
@@ -229,7 +233,7 @@ def report_command(results: Sequence[str | Path], out_dir: str | Path) -> str:
     return shlex.join(args)
 
 
-def _index_markdown(runs, tables, jobs, command: str, results) -> str:
+def _index_markdown(runs, tables, jobs, command: str, results, viewers=()) -> str:
     lines = [
         "# panoptic-bench report",
         "",
@@ -272,6 +276,7 @@ def _index_markdown(runs, tables, jobs, command: str, results) -> str:
             f"From {src}{extra}; produced by `{command}`.",
             "",
         ]
+    lines += viewer_markdown(viewers, command)
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
@@ -316,6 +321,7 @@ def build_report(
         write_table(table, out / "tables")
     for job in tqdm(jobs, desc="figures", unit="fig", disable=None):
         job.outputs.append(job.draw(out / "figures" / f"{job.stem}.png"))
+    viewers = viewer_pages(runs, _run_slugs(runs), out)
     index = out / "index.md"
-    write_text(index, _index_markdown(runs, tables, jobs, command, results))
+    write_text(index, _index_markdown(runs, tables, jobs, command, results, viewers))
     return index
