@@ -242,3 +242,40 @@ def _publish_tree(tmp: Path, final: Path) -> None:
         dest.parent.mkdir(parents=True, exist_ok=True)
         os.replace(src, dest)
     shutil.rmtree(tmp)
+
+
+def read_npz(path: str | Path, keys: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """Read every array of a ``.npz`` archive, turning any corruption into :class:`InputError`.
+
+    A raw ``.npy`` file, a truncated archive, a CRC or zlib error, pickled objects and missing
+    ``keys`` all raise :class:`InputError` naming ``path`` (never a ``BadZipFile`` traceback).
+
+    Returns
+    -------
+    dict of str to ndarray
+        Every member, fully decompressed (so a corrupt member fails here, not later).
+    """
+    import zipfile
+    import zlib
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path)
+    try:
+        npz = np.load(path, allow_pickle=False)
+        if not isinstance(npz, np.lib.npyio.NpzFile):
+            raise InputError("not an .npz archive (a raw .npy array?); save with np.savez", path)
+        with npz:
+            arrays = {name: npz[name] for name in npz.files}
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise InputError(
+            f"cannot read npz, the file is corrupt or truncated ({exc})", path
+        ) from None
+    missing = [k for k in keys if k not in arrays]
+    if missing:
+        raise InputError(
+            f"npz has no {', '.join(map(repr, missing))} (found: {sorted(arrays)})", path
+        )
+    return arrays

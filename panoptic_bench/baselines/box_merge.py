@@ -145,8 +145,13 @@ def merge_boxes(
 def _class_id(token: str, path: Path, line: int) -> int:
     from panoptic_bench.datasets.semantickitti import LABELS
 
-    if token.isdigit():
-        return int(token)
+    if token.isascii() and token.isdigit():  # "²" is isdigit() but no number
+        cid = int(token)
+        if not 0 < cid < LABELS.num_classes:
+            raise InputError(
+                f"line {line}: class id {cid} is not a train id 1-{LABELS.num_classes - 1}", path
+            )
+        return cid
     try:
         return LABELS.class_names.index(token)
     except ValueError:
@@ -294,14 +299,15 @@ def box_merge_semantickitti(
         to_train,
         write_labels,
     )
+    from panoptic_bench.evaluation.semantickitti import check_label_ids
 
     refs = list_scans(dataset, sequences=sequences)
     for ref in tqdm(refs, desc="box-merge", disable=None):
         points = read_scan(ref.scan)
         sem_path = prediction_path(semantic, ref)
-        sem = to_train(read_labels(sem_path))
-        if len(sem) != len(points):
-            raise InputError(f"{len(sem)} labels for a scan of {len(points)} points", sem_path)
+        raw = read_labels(sem_path)
+        check_label_ids(raw, len(points), sem_path, "semantic prediction")  # as eval does
+        sem = to_train(raw)
         b = read_boxes(boxes_path(boxes, ref.sequence, ref.frame))
         s, i = merge_boxes(points[:, :3], sem, b, mode, thing_ids=LABELS.thing_ids)
         write_labels(prediction_path(output, ref), semantickitti_label(s, i))

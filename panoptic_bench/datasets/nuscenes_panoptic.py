@@ -93,6 +93,14 @@ def run_job(job: SampleJob) -> None:
             f"{len(lidarseg)} labels for {len(points)} points of {job.points_path}",
             job.lidarseg_path,
         )
+    from panoptic_bench.datasets.nuscenes_spec import GENERAL_CLASSES
+
+    if len(lidarseg) and int(lidarseg.max()) >= len(GENERAL_CLASSES):  # 1000 x 200 wraps uint16
+        raise InputError(
+            f"lidarseg class {int(lidarseg.max())} is not a general class 0-"
+            f"{len(GENERAL_CLASSES) - 1}",
+            job.lidarseg_path,
+        )
     labels = panoptic_labels(points, lidarseg, job.frames, job.category, job.instance_id)
     # Written straight into the private staging directory, which make_panoptic_labels renames
     # into place once every file is complete: the whole output appears atomically, so the

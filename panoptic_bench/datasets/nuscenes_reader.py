@@ -28,9 +28,50 @@ def _read_table(path: Path) -> list[dict]:
         raise InputError("table missing", path) from None
     except (OSError, ValueError) as exc:
         raise InputError(f"cannot read table ({exc})", path) from None
+    return check_table_rows(rows, path)
+
+
+#: Keys every row of a devkit table must have (beyond ``token``), as the devkit indexes them.
+TABLE_KEYS = {
+    "sample_data": ("sample_token", "ego_pose_token", "calibrated_sensor_token", "filename"),
+    "sample": ("scene_token", "timestamp"),
+    "sample_annotation": ("sample_token", "instance_token", "translation", "size", "rotation"),
+    "lidarseg": ("sample_data_token", "filename"),
+    "panoptic": ("sample_data_token", "filename"),
+}
+#: Keys whose values are file names relative to the dataroot (must be strings).
+_FILE_KEYS = ("filename",)
+
+
+def check_table_rows(rows: Any, path: Path) -> list[dict]:
+    """Raise :class:`InputError` unless ``rows`` is a list of objects with the keys of its table.
+
+    Parameters
+    ----------
+    rows : object
+        The parsed JSON of ``path`` (``<version>/<table>.json``).
+    path : Path
+        The table file (its stem names the table).
+    """
     if not isinstance(rows, list):
-        raise InputError("table is not a JSON list", path)
+        raise InputError(f"table is not a JSON list (got {type(rows).__name__})", path)
+    need = ("token", *TABLE_KEYS.get(path.stem, ()))
+    for i, row in enumerate(rows):
+        if not isinstance(row, dict):
+            raise InputError(f"row {i} is not a JSON object (got {type(row).__name__})", path)
+        missing = [k for k in need if k not in row]
+        if missing:
+            raise InputError(f"row {i} has no {', '.join(missing)}", path)
+        for key in _FILE_KEYS:
+            if key in row and not isinstance(row[key], str):
+                raise InputError(f"row {i}: {key} must be a string, got {row[key]!r}", path)
     return rows
+
+
+def check_tables(dataroot: str | Path, version: str) -> None:
+    """Check the shape of every ``<version>/*.json`` table before the devkit indexes them."""
+    for path in sorted((Path(dataroot) / version).glob("*.json")):
+        check_table_rows(_read_table(path), path)
 
 
 def check_label_table(dataroot: str | Path, version: str, task: str) -> list[dict] | None:
@@ -72,6 +113,7 @@ def open_nuscenes(dataroot: str | Path, version: str) -> Any:
             "pass --version with one of these",
             root / version,
         )
+    check_tables(root, version)
     for task in ("lidarseg", "panoptic"):
         check_label_table(root, version, task)
     try:
@@ -215,15 +257,10 @@ def load_panoptic_npz(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError("panoptic file is missing", path)
-    try:
-        with np.load(path) as npz:
-            if "data" not in npz.files:
-                raise InputError(f"npz has no 'data' array (found: {npz.files})", path)
-            data = npz["data"]
-    except InputError:
-        raise
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError(f"cannot read npz ({exc})", path) from None
+    from panoptic_bench.io import read_npz
+
+    arrays = read_npz(path, keys=("data",))
+    data = arrays["data"]
     if data.ndim != 1 or not np.issubdtype(data.dtype, np.integer):
         raise InputError(f"'data' must be a 1-D integer array, got {data.dtype} {data.shape}", path)
     return data

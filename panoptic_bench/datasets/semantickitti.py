@@ -233,8 +233,21 @@ def read_scan(path: str | Path) -> np.ndarray:
     -------
     ndarray of shape (n_points, 4), float32
         ``x, y, z, remission``.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable or truncated file, or NaN / infinite values (a corrupt scan).
     """
-    return _read(Path(path), np.float32, 16, "scan").reshape(-1, 4)
+    points = _read(Path(path), np.float32, 16, "scan").reshape(-1, 4)
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise InputError(
+            f"{int(bad.sum())} point(s) with NaN or infinite values (first: point "
+            f"{int(np.flatnonzero(bad)[0])}); the scan is corrupt",
+            path,
+        )
+    return points
 
 
 def read_labels(path: str | Path) -> np.ndarray:
