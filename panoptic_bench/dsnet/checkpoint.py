@@ -37,6 +37,7 @@ __all__ = [
     "build_backbone",
     "build_grid",
     "build_shift",
+    "load_weights",
     "export_checkpoint",
     "is_official",
     "resolve_checkpoint",
@@ -217,11 +218,16 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise InputError(f"cannot read checkpoint ({type(exc).__name__}: {exc})", path) from None
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise InputError(f"not a panoptic-bench DS-Net checkpoint (format {FORMAT})", path)
+    _check_raw(raw, path)
+    try:
+        class_map = ClassMap.from_dict(raw["class_map"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"invalid class_map ({type(exc).__name__}: {exc})", path) from None
     return Checkpoint(
         stage=raw["stage"],
-        epoch=int(raw["epoch"]),
+        epoch=raw["epoch"],
         config=DSNetConfig.from_dict(raw["config"], source=path),
-        class_map=ClassMap.from_dict(raw["class_map"]),
+        class_map=class_map,
         backbone=raw["backbone"],
         shift=raw.get("shift"),
         optimizer=raw.get("optimizer"),
@@ -230,6 +236,45 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         metrics=list(raw.get("metrics") or []),
         path=path,
     )
+
+
+def _check_raw(raw: dict, path: Path) -> None:
+    """Raise :class:`InputError` for a checkpoint dict with missing or ill-typed entries."""
+    for key in ("stage", "epoch", "config", "class_map", "backbone"):
+        if key not in raw:
+            raise InputError(f"checkpoint has no {key!r} entry", path)
+    if raw["stage"] not in STAGES:
+        raise InputError(f"stage must be one of {', '.join(STAGES)}, got {raw['stage']!r}", path)
+    epoch = raw["epoch"]
+    if isinstance(epoch, bool) or not isinstance(epoch, int) or epoch < 0:
+        raise InputError(f"epoch must be an integer >= 0, got {epoch!r}", path)
+    if not isinstance(raw["config"], dict) or not isinstance(raw["class_map"], dict):
+        raise InputError("config and class_map must be mappings", path)
+    for key in ("backbone", "shift"):
+        state = raw.get(key)
+        if key == "shift" and state is None:
+            continue
+        if not isinstance(state, dict) or not state:
+            raise InputError(f"{key} weights are empty or not a state dict", path)
+        if not all(isinstance(v, torch.Tensor) for v in state.values()):
+            raise InputError(f"{key} weights hold values that are not tensors", path)
+    if raw["stage"] == "ds" and raw.get("shift") is None:
+        raise InputError("stage ds checkpoint without dynamic shifting weights ('shift')", path)
+
+
+def load_weights(module: nn.Module, state: dict, path: Path | None, what: str) -> None:
+    """``module.load_state_dict(state)``; a key or shape mismatch is an :class:`InputError`.
+
+    A checkpoint whose weights do not fit the network its own config and class map describe
+    (wrong shapes, missing or extra tensors, a 5-class map for a 20-class head) is a bad file.
+    """
+    try:
+        module.load_state_dict(state)
+    except RuntimeError as exc:
+        first = next((ln.strip() for ln in str(exc).splitlines()[1:] if ln.strip()), str(exc))
+        raise InputError(
+            f"{what} weights do not fit the network of its config: {first}", path
+        ) from None
 
 
 def export_checkpoint(src: str | Path, dst: str | Path, half: bool = False) -> Path:

@@ -33,6 +33,7 @@ from panoptic_bench.dsnet.checkpoint import (
     build_backbone,
     build_shift,
     load_checkpoint,
+    load_weights,
 )
 from panoptic_bench.dsnet.config import Clusterer, DatasetFormat, DSNetConfig
 from panoptic_bench.dsnet.data.datasets import LidarDataset, NuScenesDataset, SemanticKittiDataset
@@ -85,12 +86,12 @@ def load_predictor(
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
     cfg = ckpt.config
     backbone = build_backbone(cfg, ckpt.class_map.num_classes)
-    backbone.load_state_dict(ckpt.backbone)
+    load_weights(backbone, ckpt.backbone, ckpt.path, "backbone")
     backbone.to(device).eval()
     shift = None
     if ckpt.shift is not None:
         shift = build_shift(cfg, cfg.model.init_size)
-        shift.load_state_dict(ckpt.shift)
+        load_weights(shift, ckpt.shift, ckpt.path, "dynamic shifting")
         shift.to(device).eval()
     est = None
     if clusterer is not None or bandwidth is not None:
