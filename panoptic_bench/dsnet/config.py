@@ -166,6 +166,8 @@ class OptimConfig:
         for name in ("epochs_semantic", "epochs_offset", "epochs_ds", "num_workers"):
             if getattr(self, name) < 0:
                 problems.append(f"optim.{name} must be >= 0")
+        if self.val_every < 1:
+            problems.append(f"optim.val_every must be >= 1, got {self.val_every}")
         return problems
 
     def lr_at(self, epoch: int, total: int) -> float:
@@ -214,8 +216,8 @@ class AugmentConfig:
                 problems.append(f"augment.{name} must be 0 < lo <= hi, got {[lo, hi]}")
         if not 0.0 <= self.remission_zero_prob < 1.0:
             problems.append("augment.remission_zero_prob must be in [0, 1)")
-        if self.pitch_std_deg < 0 or self.roll_std_deg < 0:
-            problems.append("augment.pitch_std_deg and roll_std_deg must be >= 0")
+        if self.pitch_std_deg < 0 or self.roll_std_deg < 0 or min(self.translate_std) < 0:
+            problems.append("augment.pitch_std_deg, roll_std_deg, translate_std must be >= 0")
         return problems
 
 
@@ -346,18 +348,24 @@ class DSNetConfig:
         """
         if not isinstance(mapping, dict):
             raise InputError("a DS-Net config must be a mapping of sections", source)
-        unknown = sorted(set(mapping) - set(SECTIONS))
+        unknown = sorted(set(mapping) - set(SECTIONS), key=str)
         if unknown:
             raise InputError(
                 f"unknown config section {unknown[0]!r}; known sections: {', '.join(SECTIONS)}",
                 source,
             )
         sections = {
-            name: section_from_dict(kind, name, mapping.get(name) or {}, source)
+            name: section_from_dict(
+                kind, name, {} if mapping.get(name) is None else mapping[name], source
+            )
             for name, kind in SECTIONS.items()
         }
         cfg = cls(**sections)
         problems = [p for s in sections.values() for p in s.validate()]
+        if len(cfg.loss.ds_iteration_weights) < cfg.dynamic_shift.iterations:
+            problems.append(
+                "loss.ds_iteration_weights needs one weight per dynamic_shift iteration"
+            )
         if problems:
             raise InputError("invalid config: " + "; ".join(problems), source)
         return cfg

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 import types
 import typing
 from pathlib import Path
@@ -27,7 +28,7 @@ def section_from_dict(kind: type, name: str, values: Any, source: str | Path | N
     if not isinstance(values, dict):
         raise InputError(f"config section {name!r} must be a mapping", source)
     fields = {f.name: f for f in dataclasses.fields(kind)}
-    unknown = sorted(set(values) - set(fields))
+    unknown = sorted(set(values) - set(fields), key=str)  # keys may mix int and str
     if unknown:
         raise InputError(
             f"unknown config key '{name}.{unknown[0]}'; known keys: {', '.join(fields)}", source
@@ -70,6 +71,8 @@ def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise InputError(f"{key} must be a number, got {value!r}", source)
+        if not math.isfinite(value):
+            raise InputError(f"{key} must be a finite number, got {value!r}", source)
         return float(value)
     if hint is str:
         if not isinstance(value, str):
