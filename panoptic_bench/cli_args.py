@@ -39,6 +39,7 @@ __all__ = [
     "positive_float",
     "positive_int",
     "probability",
+    "range_edges",
     "scan_id",
     "seed",
     "selected_sequences",
@@ -251,3 +252,21 @@ def selected_sequences(split: str | None, sequences: list[str] | None) -> list[s
     from panoptic_bench.datasets.semantickitti import LABELS
 
     return [f"{int(s):02d}" for s in LABELS.splits[split]]
+
+
+def range_edges(text: str) -> tuple[float, ...]:
+    """An argparse ``type`` for ``--by-range``: >= 2 finite, increasing, non-negative edges (m)."""
+    try:
+        edges = tuple(float(e) for e in text.split(",") if e.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like 0,10,20; got {text!r}") from None
+    if (
+        len(edges) < 2
+        or not all(math.isfinite(e) for e in edges)
+        or edges[0] < 0
+        or any(b <= a for a, b in zip(edges, edges[1:]))
+    ):
+        raise argparse.ArgumentTypeError(
+            f"expected >= 2 finite, increasing, non-negative edges like 0,10,20; got {text!r}"
+        )
+    return edges
