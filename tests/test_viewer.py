@@ -281,3 +281,27 @@ def test_report_links_best_and_worst_pages(kitti_root, kitti_run, tmp_path):
         (scan,) = meta["scans"]
         assert scan["anchor"] == anchor and scan["n_shown"] == REPORT_MAX_POINTS
         assert "s0_centres" in arr
+
+
+@pytest.mark.parametrize("network", [True, False])
+def test_demo_viewer_picks_the_headline_run(kitti_root, kitti_run, tmp_path, network):
+    import shutil
+
+    from panoptic_bench.demo.kitti import KittiTarget
+    from panoptic_bench.demo.pipeline import prepare_workspace
+    from panoptic_bench.demo.viewer import write_demo_viewer
+    from panoptic_bench.viewer.report import read_viewer_scans
+
+    ws = prepare_workspace(tmp_path / "report", tmp_path / "work")
+    target = KittiTarget(kitti_root, ("00",), "real scans", "real")
+    name = "real-dsnet" if network else "real-meanshift"
+    shutil.copytree(kitti_run / "pred", ws.predictions(name))
+    centres = ws.predictions(name) if network else ws.centres("real-simulated")
+    shutil.copytree(kitti_run / "centres", centres, dirs_exist_ok=True)
+    runs = [ws.runs / "real-bfs", ws.runs / name]
+    path = write_demo_viewer(ws, target, runs)
+    assert path == ws.runs / name / VIEWER_FILE
+    scans, classes, entries = read_viewer_scans(path)
+    assert [e["anchor"] for e in entries] == ["best", "worst"]
+    assert all(s.centres is not None for s in scans) and classes.dataset == "semantickitti"
+    assert write_demo_viewer(ws, target, [ws.runs / "real-bfs"]) is None

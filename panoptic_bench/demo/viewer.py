@@ -36,6 +36,6 @@ def write_demo_viewer(ws, target, runs: list[Path]) -> Path | None:
         centres = ws.centres(f"{target.prefix}-simulated")
         if run not in runs:
             return None
-    if not (centres / "sequences").is_dir():
+    if not any((centres / "sequences").glob("*/centers/*.npz")):
         centres = None
     return write_best_and_worst(run, target.dataset, pred, target.sequences, centers=centres)
