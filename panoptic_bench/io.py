@@ -214,9 +214,11 @@ def output_tree(
     """
     check_output_dir(output, overwrite=overwrite, inputs=inputs)
     final = Path(output).resolve()
+    home = final.parent  # the temp tree lives in the nearest existing ancestor: on failure no
+    while not home.exists():  # directory at all has been created, not even a parent
+        home = home.parent
     try:
-        final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
+        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=home))
         os.chmod(tmp, 0o777 & ~current_umask())
     except OSError as exc:
         raise _write_error(exc, final) from None
@@ -234,6 +236,7 @@ def _publish_tree(tmp: Path, final: Path) -> None:
     """Move the finished tree ``tmp`` to ``final`` (rename, or file by file into a non-empty one)."""
     if final.is_dir() and not any(final.iterdir()):
         final.rmdir()
+    final.parent.mkdir(parents=True, exist_ok=True)
     if not final.exists():
         os.rename(tmp, final)
         return
