@@ -94,15 +94,7 @@ def check_label_table(dataroot: str | Path, version: str, task: str) -> list[dic
     return rows
 
 
-def open_nuscenes(dataroot: str | Path, version: str) -> Any:
-    """Load ``nuscenes.NuScenes(version, dataroot)`` quietly, with clear errors.
-
-    Returns
-    -------
-    nuscenes.NuScenes
-    """
-    from nuscenes import NuScenes
-
+def _check_root(dataroot: str | Path, version: str) -> Path:
     root = Path(dataroot)
     if not root.is_dir():
         raise InputError("nuScenes dataroot not found", root)
@@ -116,6 +108,31 @@ def open_nuscenes(dataroot: str | Path, version: str) -> Any:
     check_tables(root, version)
     for task in ("lidarseg", "panoptic"):
         check_label_table(root, version, task)
+    return root
+
+
+def open_tables(dataroot: str | Path, version: str) -> Any:
+    """The tables scoring needs, without importing the devkit (see ``nuscenes_tables``).
+
+    Returns
+    -------
+    panoptic_bench.datasets.nuscenes_tables.NuScenesTables
+    """
+    from panoptic_bench.datasets.nuscenes_tables import NuScenesTables
+
+    return NuScenesTables(_check_root(dataroot, version), version)
+
+
+def open_nuscenes(dataroot: str | Path, version: str) -> Any:
+    """Load ``nuscenes.NuScenes(version, dataroot)`` quietly, with clear errors.
+
+    Returns
+    -------
+    nuscenes.NuScenes
+    """
+    from nuscenes import NuScenes
+
+    root = _check_root(dataroot, version)
     try:
         return NuScenes(version=version, dataroot=str(root), verbose=False)
     except FileNotFoundError as exc:
@@ -141,6 +158,11 @@ class NuScenesLidar:
         self.dataroot = Path(dataroot)
         self.version = version
         self.nusc = nusc if nusc is not None else open_nuscenes(dataroot, version)
+
+    @classmethod
+    def tables_only(cls, dataroot: str | Path, version: str) -> NuScenesLidar:
+        """A reader over :func:`open_tables` (no devkit import: fast start for scoring)."""
+        return cls(dataroot, version, nusc=open_tables(dataroot, version))
 
     @property
     def table_root(self) -> Path:

@@ -50,6 +50,53 @@ GENERAL_CLASSES: tuple[str, ...] = (
     "static.vegetation",
     "vehicle.ego",
 )
+# The Panoptic nuScenes challenge classes (index = challenge id) and the general -> challenge map
+# of the devkit's ``LidarsegClassMapper``; unlisted general classes map to 0 ("ignore").
+CHALLENGE_CLASSES: tuple[str, ...] = (
+    "ignore", "barrier", "bicycle", "bus", "car", "construction_vehicle", "motorcycle",
+    "pedestrian", "traffic_cone", "trailer", "truck", "driveable_surface", "other_flat",
+    "sidewalk", "terrain", "manmade", "vegetation",
+)  # fmt: skip
+GENERAL_TO_CHALLENGE: dict[str, str] = {
+    "human.pedestrian.adult": "pedestrian",
+    "human.pedestrian.child": "pedestrian",
+    "human.pedestrian.police_officer": "pedestrian",
+    "human.pedestrian.construction_worker": "pedestrian",
+    "vehicle.car": "car",
+    "vehicle.motorcycle": "motorcycle",
+    "vehicle.bicycle": "bicycle",
+    "vehicle.bus.bendy": "bus",
+    "vehicle.bus.rigid": "bus",
+    "vehicle.truck": "truck",
+    "vehicle.construction": "construction_vehicle",
+    "vehicle.trailer": "trailer",
+    "movable_object.barrier": "barrier",
+    "movable_object.trafficcone": "traffic_cone",
+    "flat.driveable_surface": "driveable_surface",
+    "flat.sidewalk": "sidewalk",
+    "flat.terrain": "terrain",
+    "flat.other": "other_flat",
+    "static.manmade": "manmade",
+    "static.vegetation": "vegetation",
+}
+N_CHALLENGE_THINGS = 10  # challenge ids 1..10 are things, 11..16 stuff
+
+
+def devkit_set_order(names: tuple[str, ...]) -> list[str]:
+    """The iteration order of a set literal of ``names`` in the installed devkit's bytecode.
+
+    The devkit's ``PanopticClassMapper`` builds its thing / stuff dicts from set literals, so
+    PQ-dagger's mean runs in hash order. A compiled set literal is a frozenset constant, stored
+    in the ``.pyc`` in marshal order and copied into a new set at run time; doing the same here
+    gives the same order under this process's hash seed (and so the devkit's PQ-dagger bits).
+    """
+    import marshal
+
+    out: set[str] = set()
+    out.update(frozenset(sorted(names, key=marshal.dumps)))
+    return list(out)
+
+
 ATTRIBUTES: tuple[str, ...] = (
     "vehicle.moving",
     "vehicle.stopped",
@@ -144,9 +191,9 @@ def scene_names(version: str, split: str) -> list[str]:
     list of str
         The scene names, in the devkit's order.
     """
-    from nuscenes.utils.splits import create_splits_scenes
+    from panoptic_bench.datasets.nuscenes_tables import devkit_splits
 
-    splits = create_splits_scenes(verbose=False)
+    splits = devkit_splits()
     if split not in splits:
         raise InputError(f"unknown nuScenes split {split!r}; known: {', '.join(sorted(splits))}")
     kind = version_kind(version)

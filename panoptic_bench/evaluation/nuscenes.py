@@ -65,24 +65,33 @@ class ChallengeClasses:
 
     @classmethod
     def from_nusc(cls, nusc: Any) -> ChallengeClasses:
-        from nuscenes.eval.panoptic.utils import PanopticClassMapper
+        """The devkit's ``PanopticClassMapper`` facts for a dataroot, without importing it.
 
-        mapper = PanopticClassMapper(nusc)
-        coarse = mapper.coarse_name_2_coarse_idx_mapping
-        names = [""] * len(coarse)
-        for name, idx in coarse.items():
-            names[idx] = name
-        fine = mapper.fine_idx_2_coarse_idx_mapping
-        lut = np.full(max(fine) + 1, -1, dtype=np.int64)
-        for f, c in fine.items():
-            lut[f] = c
+        ``nusc`` is a ``nuscenes.NuScenes`` or a
+        :class:`~panoptic_bench.datasets.nuscenes_tables.NuScenesTables` (anything with
+        ``lidarseg_name2idx_mapping``, the category table's ``index`` per general class).
+        """
+        from panoptic_bench.datasets.nuscenes_spec import (
+            CHALLENGE_CLASSES,
+            GENERAL_TO_CHALLENGE,
+            N_CHALLENGE_THINGS,
+            devkit_set_order,
+        )
+
+        ids = {name: i for i, name in enumerate(CHALLENGE_CLASSES)}
+        fine = nusc.lidarseg_name2idx_mapping
+        lut = np.full(max(fine.values(), default=0) + 1, -1, dtype=np.int64)
+        for name, idx in fine.items():
+            lut[idx] = ids[GENERAL_TO_CHALLENGE.get(name, CHALLENGE_CLASSES[IGNORE])]
+        things = CHALLENGE_CLASSES[1 : N_CHALLENGE_THINGS + 1]
+        stuff = CHALLENGE_CLASSES[N_CHALLENGE_THINGS + 1 :]
         return cls(
-            tuple(names),
-            tuple(sorted(mapper.things.values())),
-            tuple(sorted(mapper.stuff.values())),
+            CHALLENGE_CLASSES,
+            tuple(range(1, N_CHALLENGE_THINGS + 1)),
+            tuple(range(N_CHALLENGE_THINGS + 1, len(CHALLENGE_CLASSES))),
             lut,
-            tuple(mapper.things.values()),
-            tuple(mapper.stuff.values()),
+            tuple(ids[n] for n in devkit_set_order(things)),
+            tuple(ids[n] for n in devkit_set_order(stuff)),
         )
 
 
@@ -242,7 +251,7 @@ def evaluate_nuscenes(
         raise InputError(f"--workers must be >= 1, got {workers}")
     if min_inst_points < 0:
         raise InputError(f"--min-inst-points must be >= 0, got {min_inst_points}")
-    reader = reader or NuScenesLidar(dataroot, version)
+    reader = reader or NuScenesLidar.tables_only(dataroot, version)
     if not hasattr(reader.nusc, "panoptic") or len(reader.nusc.panoptic) == 0:
         raise InputError(
             "no panoptic ground truth in this dataroot; generate it with "

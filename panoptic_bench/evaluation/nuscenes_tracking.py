@@ -178,7 +178,7 @@ def evaluate_nuscenes_tracking(
         raise InputError(f"--workers must be >= 1, got {workers}")
     if min_inst_points < 0:
         raise InputError(f"--min-inst-points must be >= 0, got {min_inst_points}")
-    reader = reader or NuScenesLidar(dataroot, version)
+    reader = reader or NuScenesLidar.tables_only(dataroot, version)
     if not hasattr(reader.nusc, "panoptic") or len(reader.nusc.panoptic) == 0:
         raise InputError(
             "no panoptic ground truth in this dataroot; generate it with "

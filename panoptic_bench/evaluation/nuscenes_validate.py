@@ -130,7 +130,7 @@ def validate_nuscenes(
     InputError
         If the dataroot or the split itself cannot be used.
     """
-    reader = reader or NuScenesLidar(dataroot, version)
+    reader = reader or NuScenesLidar.tables_only(dataroot, version)
     res = Path(result_path)
     problems = check_submission_json(res / eval_set / "submission.json")
     tokens = reader.sample_data_tokens(eval_set)
