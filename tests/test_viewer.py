@@ -202,6 +202,13 @@ def test_bad_semantickitti_input(kitti_root, kitti_run, tmp_path, capsys, case, 
     assert not list(tmp_path.rglob("*.tmp"))
 
 
+def test_out_inside_an_input_tree_is_refused(kitti_run, tmp_path, capsys, kitti_root):
+    out = kitti_run / "pred" / "view.html"
+    assert main(_kitti_args(kitti_root, kitti_run, out)) == 2
+    assert "--out lies inside the input tree" in capsys.readouterr().err
+    assert not out.exists()
+
+
 @pytest.fixture(scope="module")
 def nus_root(tmp_path_factory, shared_data):
     root = write_mini(tmp_path_factory.mktemp("nus") / "root", real_sweep(shared_data))
