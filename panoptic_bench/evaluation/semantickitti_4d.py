@@ -17,6 +17,7 @@ bin edge is split), as :mod:`panoptic_bench.metrics.by_range` does for single sc
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -35,7 +36,13 @@ from panoptic_bench.evaluation.semantickitti import (
     scan_point_count,
 )
 from panoptic_bench.metrics.by_range import parse_edges, point_range
-from panoptic_bench.metrics.lstq import LSTQMode, LSTQResult, LSTQStats, lstq_frame_stats
+from panoptic_bench.metrics.lstq import (
+    LSTQMode,
+    LSTQResult,
+    LSTQStats,
+    SequenceTubes,
+    lstq_frame_stats,
+)
 
 __all__ = ["SemanticKitti4DEvaluation", "evaluate_semantickitti_4d", "lstq_scores"]
 
@@ -52,14 +59,33 @@ class _Job:
     edges: tuple[float, ...] | None
 
 
-def _check(labels: np.ndarray, n: int, path: Path, what: str) -> None:
+_INVALID = 255
+#: raw semantic id -> train id, 255 for a raw id that SemanticKITTI does not define
+_CHECKED_LUT = np.where(sk.LABELS.valid_raw, sk.LABELS.train_lut, _INVALID).astype(np.uint8)
+
+
+def _split(labels: np.ndarray, n: int, path: Path, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Checked ``(train ids uint8, instance ids uint16)`` of a label file of a scan of ``n`` points.
+
+    On a little-endian machine the halves of each uint32 are read as strided uint16 views.
+    """
     if len(labels) == 2 * n and n:
         raise InputError(
             f"{what} has {len(labels)} uint32 values for {n} points: 64-bit labels? write one "
             "uint32 per point (raw class in the low 16 bits, instance id < 2**16 in the high 16)",
             path,
         )
-    check_label_ids(labels, n, path, what)
+    if len(labels) != n:
+        check_label_ids(labels, n, path, what)  # raises with the count message
+    if sys.byteorder == "little":
+        halves = labels.view(np.uint16)
+        raw, inst = halves[0::2], halves[1::2]
+    else:
+        raw, inst = labels & 0xFFFF, labels >> 16
+    sem = _CHECKED_LUT[raw]
+    if sem.max(initial=0) == _INVALID:
+        check_label_ids(labels, n, path, what)  # raises with the unknown-id message
+    return sem, inst
 
 
 def _zeros(mode: LSTQMode) -> LSTQStats:
@@ -76,17 +102,16 @@ def _score(job: _Job) -> tuple[LSTQStats, list[LSTQStats] | None]:
         "min_points": job.min_points,
         "mode": job.mode,
     }
-    total = _zeros(job.mode)
+    conf = np.zeros((L.num_classes, L.num_classes), dtype=np.int64)
+    tubes: dict[str, list[SequenceTubes]] = {}
     bins = None if job.edges is None else [_zeros(job.mode) for _ in job.edges[1:]]
     for ref, pred_path in zip(job.refs, job.preds):
         n = scan_point_count(ref.scan)
-        gt = sk.read_labels(ref.label)
-        _check(gt, n, ref.label, "ground truth")
-        pred = sk.read_labels(pred_path)
-        _check(pred, n, pred_path, "prediction")
-        sg, sp = L.train_lut[gt & 0xFFFF], L.train_lut[pred & 0xFFFF]
-        ig, ip = gt >> 16, pred >> 16
-        total = total.add_frame(ref.sequence, *lstq_frame_stats(sp, ip, sg, ig, **kw))
+        sg, ig = _split(sk.read_labels(ref.label), n, ref.label, "ground truth")
+        sp, ip = _split(sk.read_labels(pred_path), n, pred_path, "prediction")
+        c, t = lstq_frame_stats(sp, ip, sg, ig, **kw)
+        conf += c
+        tubes.setdefault(ref.sequence, []).append(t)
         if bins is not None:
             rng = point_range(sk.read_scan(ref.scan))
             which = np.searchsorted(np.asarray(job.edges), rng, side="right") - 1
@@ -94,6 +119,8 @@ def _score(job: _Job) -> tuple[LSTQStats, list[LSTQStats] | None]:
                 m = which == b
                 frame = lstq_frame_stats(sp[m], ip[m], sg[m], ig[m], **kw)
                 bins[b] = bins[b].add_frame(ref.sequence, *frame)
+    seqs = {name: SequenceTubes.concat(parts) for name, parts in tubes.items()}
+    total = LSTQStats(L.num_classes, L.ignore_ids, L.thing_ids, job.mode, conf, seqs)
     return total, bins
 
 

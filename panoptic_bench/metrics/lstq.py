@@ -96,12 +96,17 @@ class SequenceTubes:
     inter_sizes: np.ndarray = field(default_factory=_empty)
 
     def __add__(self, other: SequenceTubes) -> SequenceTubes:
-        parts = []
+        return SequenceTubes.concat([self, other])
+
+    @staticmethod
+    def concat(parts: Sequence[SequenceTubes]) -> SequenceTubes:
+        """The sum of many (e.g. every frame of a sequence) in one reduction."""
+        out = []
         for name in ("gt", "pred", "inter"):
-            k = np.concatenate([getattr(self, f"{name}_keys"), getattr(other, f"{name}_keys")])
-            c = np.concatenate([getattr(self, f"{name}_sizes"), getattr(other, f"{name}_sizes")])
-            parts.extend(_reduce(k, c))
-        return SequenceTubes(*parts)
+            k = np.concatenate([getattr(p, f"{name}_keys") for p in parts] or [_empty()])
+            c = np.concatenate([getattr(p, f"{name}_sizes") for p in parts] or [_empty()])
+            out.extend(_reduce(k, c))
+        return SequenceTubes(*out)
 
 
 def _checked(name: str, arr: np.ndarray, limit: int, what: str) -> np.ndarray:
@@ -181,24 +186,36 @@ def lstq_frame_stats(
     gt_pt = ig > 0
     if corrected:
         gt_pt &= is_thing[sg]
-    gt_key = (sg << _ID_BITS) | ig
-    gkeys, gsizes = _reduce(gt_key[gt_pt])
-    big = gsizes >= min_points if corrected else gsizes > min_points
-    # per point: does it belong to a ground-truth segment that joins its tube in this frame?
-    valid = np.zeros(len(sg), dtype=bool)
-    if len(gkeys):
-        valid[gt_pt] = big[np.searchsorted(gkeys, gt_key[gt_pt])]
-
-    if corrected:
-        pred_pt = (ip > 0) & is_thing[sp] & ~(gt_pt & ~valid)
+        pred_pt = (ip > 0) & is_thing[sp]
         pred_key = (sp << _ID_BITS) | ip
-        inter_pt = valid & pred_pt
+        inter_pred = np.where(pred_pt, pred_key, 0)
     else:
         pred_pt = (ip > 0) & ~ignored[sp]
         pred_key = ip
-        inter_pt = valid & (ip > 0)
-    pkeys, psizes = _reduce(pred_key[pred_pt])
-    ikeys, isizes = _reduce((gt_key[inter_pt] << 32) | pred_key[inter_pt])
+        inter_pred = ip  # intersections count a predicted id whatever its class (R3)
+    # one sort of the ground-truth points by (segment, predicted tube or 0) gives the segment
+    # sizes and the intersections together
+    gkey = (sg[gt_pt] << _ID_BITS) | ig[gt_pt]
+    pair, pair_n = _reduce((gkey << 32) | inter_pred[gt_pt])
+    seg = pair >> 32
+    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]]) if len(seg) else _empty()
+    gkeys = seg[starts]
+    gsizes = np.add.reduceat(pair_n, starts) if len(starts) else _empty()
+    big = gsizes >= min_points if corrected else gsizes > min_points
+    pair_big = np.repeat(big, np.diff(np.r_[starts, len(seg)]))
+    pred_part = pair & 0xFFFFFFFF
+    hit = pair_big & (pred_part > 0)
+    ikeys, isizes = pair[hit], pair_n[hit]
+    if corrected:  # C4: predicted points on too-small ground-truth segments are void
+        pkeys, psizes = _reduce(pred_key[pred_pt])
+        void = ~pair_big & (pred_part > 0)
+        np.subtract.at(psizes, np.searchsorted(pkeys, pred_part[void]), pair_n[void])
+        keep = psizes > 0
+        pkeys, psizes = pkeys[keep], psizes[keep]
+    else:
+        counts = np.bincount(pred_key[pred_pt], minlength=1 << _ID_BITS)
+        pkeys = np.flatnonzero(counts).astype(np.int64)
+        psizes = counts[pkeys].astype(np.int64)
     return conf, SequenceTubes(gkeys[big], gsizes[big], pkeys, psizes, ikeys, isizes)
 
 
