@@ -1,7 +1,8 @@
 """CPU cost of DS-Net inference per frame: stages, end-to-end totals and peak RSS.
 
-Configurations ``configs/dsnet_synthetic_cpu.yaml`` (CPU) and ``configs/dsnet_semantickitti.yaml``
-(paper), random-initialised weights (``torch.manual_seed(0)``; the backbone's cost does not depend
+Configurations ``configs/dsnet_synthetic_cpu.yaml`` (CPU, the nominal network) and
+``configs/dsnet_semantickitti.yaml`` (paper: the official DS-Net network, ``model.variant:
+official``, with its effective kernels, voxel rule and inference rules), random-initialised weights (``torch.manual_seed(0)``; the backbone's cost does not depend
 on training), on the real scan ``../shared/data/semantickitti/sequences/00/velodyne/000000.bin``
 and on a synthetic ~120k-point HDL-64E sweep (``panoptic_bench.datasets.synthetic``, seed 0,
 sequence 08, frame 0).
@@ -29,8 +30,8 @@ Same-run references (no external baseline exists: the official code does not bui
 paper / CPU config cost, DS-Net / Backbone-with-Fusion cost, and the backbone with kernel-map
 reuse switched off (every submanifold layer rebuilds its own map and neighbour pairs) / ours.
 
-Usage: ``.venv/bin/python benchmarks/bench_infer.py [--quick]``; writes
-``benchmarks/results/infer.md``.
+Usage: ``.venv/bin/python benchmarks/bench_infer.py [--quick | --paper-only] [--threads N]``;
+writes ``benchmarks/results/infer.md``. CUDA: not measured (no GPU was available).
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ ROOT = HERE.parent
 CONFIGS = {"CPU": "configs/dsnet_synthetic_cpu.yaml", "paper": "configs/dsnet_semantickitti.yaml"}
 KITTI = ROOT.parent / "shared" / "data" / "semantickitti"
 THREADS = 2  # default; --threads overrides (workers read PB_BENCH_THREADS)
+DEVICE = "cpu"  # --device overrides (workers read PB_BENCH_DEVICE)
 STAGES = [  # (key, label)
     ("voxelize", "voxelize (cylindrical grid, 9-D point features)"),
     ("backbone", "backbone: point MLP + U-Net + semantic & offset heads"),
@@ -139,9 +141,15 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
     import torch
 
     from panoptic_bench.baselines.panoptic import consensus_fusion, filter_small_instances
-    from panoptic_bench.dsnet.checkpoint import build_backbone, build_grid, build_shift
+    from panoptic_bench.dsnet.checkpoint import (
+        build_backbone,
+        build_grid,
+        build_shift,
+        is_official,
+    )
     from panoptic_bench.dsnet.config import Clusterer, load_config
     from panoptic_bench.dsnet.inference.clustering import make_clusterer
+    from panoptic_bench.dsnet.inference.official import official_seeds
     from panoptic_bench.dsnet.inference.predictor import Predictor
     from panoptic_bench.dsnet.model import shift_ops  # noqa: F401 - numba kernels load with imports
     from panoptic_bench.dsnet.model.dynamic_shift import (
@@ -153,23 +161,27 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
     from panoptic_bench.dsnet.sparse import functional as spf
 
     torch.set_num_threads(int(os.environ.get("PB_BENCH_THREADS", THREADS)))
+    device = torch.device(os.environ.get("PB_BENCH_DEVICE", "cpu"))
     rss_import = _rss_mib()
     cfg = load_config(ROOT / CONFIGS[config])
     sample, cmap = _load_scan(scan)
     torch.manual_seed(0)
-    net = build_backbone(cfg, cmap.num_classes).eval()
-    shift = build_shift(cfg, cfg.model.init_size).eval()
+    net = build_backbone(cfg, cmap.num_classes).to(device).eval()
+    shift = build_shift(cfg, cfg.model.init_size).to(device).eval()
     model, sem, off = _oracle(net, sample, cmap)
     res: dict = {"config": config, "scan": scan, "points": len(sample.xyz)}
+    official = is_official(cfg)
+    res["variant"] = cfg.model.variant.value
+    res["device"] = device.type
     res["load_start"] = os.getloadavg()[0]
     res["params_m"] = sum(p.numel() for p in net.parameters()) / 1e6
     res["rss_model"] = _rss_mib()
-    bwf = Predictor(model, None, cfg, cmap)
-    dsnet = Predictor(model, shift, cfg, cmap)
+    bwf = Predictor(model, None, cfg, cmap, device)
+    dsnet = Predictor(model, shift, cfg, cmap, device)
     best = {"total_bwf": float("inf"), "total_ds": float("inf")}
     scan4 = np.concatenate([sample.xyz, sample.remission[:, None]], axis=1)
     with torch.inference_mode():
-        net(collate([scan4[::25]], build_grid(cfg)))  # one-time start-up costs, small input
+        net(collate([scan4[::25]], build_grid(cfg), device))  # start-up costs, small input
         if warmup:
             bwf.predict(sample)
             dsnet.predict(sample)
@@ -185,7 +197,7 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
         # the other stages, one by one, on the same inputs
         features = model.last.point_features
         n = max(repeats, 3)
-        res["voxelize"], batch = _best(lambda: collate([scan4], build_grid(cfg)), n)
+        res["voxelize"], batch = _best(lambda: collate([scan4], build_grid(cfg), device), n)
         res["voxels"] = int(batch.voxel_coords.shape[0])
         things = np.flatnonzero(cmap.thing_lut()[sem])
         centres = sample.xyz[things].astype(np.float64) + off[things]
@@ -200,15 +212,25 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
 
         res["ms12"], inst = _best(bwf_cluster, n)
         res["fusion"], _ = _best(lambda: consensus_fusion(sem, inst, cmap.num_classes), n)
-        res["fps"], idx = _best(lambda: select_seeds(centres, cfg.dynamic_shift.max_seeds), n)
+        if official:  # FPS on the points' xyz, nearest seed by xyz (official rules)
+            pts = sample.xyz[things].astype(np.float64)
+
+            def fps():
+                got = official_seeds(pts, cfg.dynamic_shift.max_seeds)
+                return np.arange(len(pts)) if got is None else got
+
+            res["fps"], idx = _best(fps, n)
+        else:
+            res["fps"], idx = _best(lambda: select_seeds(centres, cfg.dynamic_shift.max_seeds), n)
+        space = pts if official else centres
         res["seeds"] = len(idx)
-        seeds = torch.from_numpy(centres[idx]).float()
-        feats = features[torch.from_numpy(things[idx])].float()
+        seeds = torch.from_numpy(centres[idx]).float().to(device)
+        feats = features[torch.from_numpy(things[idx]).to(features.device)].float()
         res["shift"], sh = _best(lambda: shift(seeds, feats), n)
-        final = sh.final.double().numpy()
+        final = sh.final.double().cpu().numpy()
         ms065 = make_clusterer(cfg.inference.ds_clusterer, cfg.inference.ds_bandwidth)
         res["ms065"], seed_lab = _best(lambda: cluster_seeds(final, ms065), n)
-        res["assign"], lab = _best(lambda: assign_to_seeds(centres, centres[idx], seed_lab), n)
+        res["assign"], lab = _best(lambda: assign_to_seeds(space, space[idx], seed_lab), n)
 
         def ds_fuse():
             out_inst = np.zeros(len(sem), dtype=np.int64)
@@ -241,6 +263,7 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
 def run_worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: bool) -> dict:
     n = str(THREADS)
     env = dict(os.environ, OMP_NUM_THREADS=n, NUMBA_NUM_THREADS=n, PB_BENCH_THREADS=n)
+    env["PB_BENCH_DEVICE"] = DEVICE
     flags = [str(repeats), str(int(warmup)), str(int(no_cache_ref))]
     cmd = [sys.executable, __file__, "--worker", config, scan, *flags]
     t0 = time.perf_counter()
@@ -254,14 +277,19 @@ def run_worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref:
 
 
 def render(results: list[dict], load: tuple, repeats: dict, wall: float) -> str:
-    cols = [f"{r['config']} / {r['scan']}" for r in results]
+    cols = [f"{r['config']} ({r.get('variant', 'nominal')}) / {r['scan']}" for r in results]
     head = "| | " + " | ".join(cols) + " |\n|---|" + "---:|" * len(cols)
     by = {(r["config"], r["scan"]): r for r in results}
     lines = [
         "## Inference cost per frame (`bench_infer.py`)",
         "",
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, torch threads "
-        f"{THREADS}, `torch.inference_mode()`, random-initialised weights; load average "
+        f"{THREADS}, device {DEVICE}, `torch.inference_mode()`, random-initialised weights; "
+        + (
+            "CUDA: not measured (no GPU was lent when these figures were taken); "
+            * (DEVICE == "cpu")
+        )
+        + "load average "
         f"{load[0][0]:.2f} before / {load[1][0]:.2f} after (1 min; other work shares the "
         "machine, absolute ms are noisy); one fresh process per column, a small-input "
         f"backbone call first (start-up costs). End-to-end: best of {repeats['CPU']} frames "
@@ -332,7 +360,7 @@ def render(results: list[dict], load: tuple, repeats: dict, wall: float) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global THREADS
+    global THREADS, DEVICE
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--worker"]:
         config, scan, *flags = argv[1:]
@@ -340,16 +368,22 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="real scan only, fewer repeats")
+    parser.add_argument("--device", default="cpu", help="cpu (default) or cuda")
+    parser.add_argument(
+        "--paper-only", action="store_true", help="only the paper (official) config, real scan"
+    )
     parser.add_argument(
         "--threads", type=int, default=THREADS, help="torch / numba / OpenMP threads (default 2)"
     )
     args = parser.parse_args(argv)
-    THREADS = args.threads
+    THREADS, DEVICE = args.threads, args.device
     repeats = {"CPU": 2, "paper": 1}
     # (config, scan, warm-up frames, kernel-map reference); the paper config forward costs
     # 10-60 s per frame on 2 shared cores, so it runs once per method, on the real scan
     runs = [("CPU", "real", False, True)]
-    if not args.quick:
+    if args.paper_only:
+        runs = [("paper", "real", False, False)]
+    elif not args.quick:
         runs += [("CPU", "synthetic", False, False), ("paper", "real", False, False)]
     t0, load0 = time.perf_counter(), os.getloadavg()
     results = [run_worker(c, s, repeats[c], w, ref) for c, s, w, ref in runs]
