@@ -38,6 +38,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the process exit status."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:  # stdout closed early (``| head``), also while printing --help
+        _silence_stdout()
+        return 141
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -55,13 +63,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         text = str(exc) if isinstance(exc, InputErrors) else " ".join(str(exc).split())
         return _fail(f"panoptic-bench: error: {text}", 2)
     except BrokenPipeError:
-        _silence_stdout()
-        return 141
-    except OSError as exc:
-        if exc.errno not in USER_OS_ERRORS:
+        raise
+    except Exception as exc:
+        from panoptic_bench.io import full_disk_error
+
+        cause = full_disk_error(exc) or exc  # a full disk hidden behind a cleanup error
+        if not isinstance(cause, OSError) or cause.errno not in USER_OS_ERRORS:
             raise
-        where = f"{exc.filename}: " if exc.filename else ""
-        return _fail(f"panoptic-bench: error: {where}{exc.strerror}", 2)
+        where = f"{cause.filename}: " if cause.filename else ""
+        return _fail(f"panoptic-bench: error: {where}{cause.strerror}", 2)
     except KeyboardInterrupt:
         return _fail("panoptic-bench: interrupted", 130)
 

@@ -58,13 +58,28 @@ def atomic_open(path: str | Path, mode: str = "w", **kwargs: Any) -> Iterator[IO
     except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        if isinstance(exc, OSError) and exc.errno in FULL_DISK:
-            raise _write_error(exc, path) from None
+        full = full_disk_error(exc)
+        if full is not None:
+            raise _write_error(full, path) from None
         raise
 
 
 #: errno values of a full disk or exhausted quota: user errors, reported as InputError.
 FULL_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def full_disk_error(exc: BaseException | None) -> OSError | None:
+    """The ENOSPC/EDQUOT/EFBIG ``OSError`` in ``exc`` or its context chain, if any.
+
+    A writer that fails on a full disk often raises something else while cleaning up (zipfile:
+    ``ValueError: seek of closed file``); the disk error is then only in ``__context__``.
+    """
+    seen = 0
+    while exc is not None and seen < 16:
+        if isinstance(exc, OSError) and exc.errno in FULL_DISK:
+            return exc
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return None
 
 
 def current_umask() -> int:
@@ -227,8 +242,11 @@ def output_tree(
         _publish_tree(tmp, final)
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(exc, OSError):
-            raise _write_error(exc, final) from None
+        if isinstance(exc, InputError) and str(tmp) in str(exc):  # name the real output path
+            raise InputError(str(exc).replace(str(tmp), str(final))) from None
+        full = full_disk_error(exc)
+        if full is not None or isinstance(exc, OSError):
+            raise _write_error(full or exc, final) from None
         raise
 
 
