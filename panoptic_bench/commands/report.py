@@ -30,8 +30,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def handler(args: argparse.Namespace) -> int:
     """Build the report and print the path of index.md."""
+    from pathlib import Path
+
+    from panoptic_bench.io import output_tree
     from panoptic_bench.reports.index import build_report, report_command
 
-    index = build_report(args.results, args.out, command=report_command(args.results, args.out))
-    print(index)
+    out = Path(args.out)
+    out.resolve().parent.mkdir(parents=True, exist_ok=True)  # temp tree beside it: same links
+    # all-or-nothing: tables, figures and index.md appear together or not at all (full disk)
+    with output_tree(out, overwrite=True) as tmp:
+        index = build_report(args.results, tmp, command=report_command(args.results, args.out))
+    print(out / Path(index).relative_to(tmp))
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``synth`` command group."""
@@ -26,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="00:40,08:20",
         help="SEQ:FRAMES list, e.g. 00:40,08:20 (default)",
     )
-    kitti.add_argument("--seed", type=int, default=0, help="global seed (default 0)")
+    kitti.add_argument("--seed", type=ca.seed, default=0, help="global seed (default 0)")
     kitti.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
     kitti.add_argument(
         "--profile",
@@ -46,9 +48,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     nus.add_argument("--out", required=True, help="dataroot to write")
     nus.add_argument("--version", default="v1.0-mini", help="nuScenes version (default v1.0-mini)")
-    nus.add_argument("--scenes", type=int, default=4, help="number of scenes (default 4)")
-    nus.add_argument("--samples", type=int, default=10, help="keyframes per scene (default 10)")
-    nus.add_argument("--seed", type=int, default=0, help="global seed (default 0)")
+    nus.add_argument(
+        "--scenes", type=ca.positive_int, default=4, help="number of scenes (default 4)"
+    )
+    nus.add_argument(
+        "--samples", type=ca.positive_int, default=10, help="keyframes per scene (default 10)"
+    )
+    nus.add_argument("--seed", type=ca.seed, default=0, help="global seed (default 0)")
     nus.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
     nus.add_argument(
         "--profile",
@@ -77,14 +83,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     stats.add_argument(
         "--synthetic-scans",
-        type=int,
+        type=ca.positive_int,
         default=12,
         help="scans to simulate without --synthetic, one street each (default 12)",
     )
-    stats.add_argument("--seed", type=int, default=0, help="seed of the simulated scans")
+    stats.add_argument("--seed", type=ca.seed, default=0, help="seed of the simulated scans")
     stats.add_argument("--out", required=True, help="output directory")
     stats.add_argument(
-        "--max-scans", type=int, default=200, help="at most this many scans per tree (default 200)"
+        "--max-scans",
+        type=ca.positive_int,
+        default=200,
+        help="at most this many scans per tree (default 200)",
     )
     stats.add_argument("--figure", default=None, help="also write the PNG figure to this path")
     stats.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
@@ -101,13 +110,13 @@ def semantickitti(args: argparse.Namespace) -> int:
     """Handler of ``synth semantickitti``."""
     from panoptic_bench.datasets.synthetic.profile import load_profile
     from panoptic_bench.datasets.synthetic.writers import generate_semantickitti, parse_sequences
+    from panoptic_bench.io import output_tree
 
     seqs = parse_sequences(args.sequences)
     profile = load_profile(args.profile)
-    root = generate_semantickitti(
-        args.out, seqs, seed=args.seed, overwrite=args.overwrite, profile=profile
-    )
-    print(f"wrote {sum(seqs.values())} scans in {len(seqs)} sequence(s) to {root}")
+    with output_tree(args.out, overwrite=args.overwrite) as tmp:  # all or nothing (Ctrl-C, ENOSPC)
+        generate_semantickitti(tmp, seqs, seed=args.seed, overwrite=True, profile=profile)
+    print(f"wrote {sum(seqs.values())} scans in {len(seqs)} sequence(s) to {args.out}")
     return 0
 
 
@@ -115,17 +124,15 @@ def nuscenes(args: argparse.Namespace) -> int:
     """Handler of ``synth nuscenes``."""
     from panoptic_bench.datasets.synthetic.profile import load_profile
     from panoptic_bench.datasets.synthetic.writers import generate_nuscenes
+    from panoptic_bench.io import output_tree
 
     profile = load_profile(args.profile)
-    root = generate_nuscenes(
-        args.out,
-        args.version,
-        args.scenes,
-        args.samples,
-        seed=args.seed,
-        overwrite=args.overwrite,
-        profile=profile,
-    )
+    with output_tree(args.out, overwrite=args.overwrite) as tmp:  # all or nothing (Ctrl-C, ENOSPC)
+        generate_nuscenes(
+            tmp, args.version, args.scenes, args.samples, seed=args.seed, overwrite=True,
+            profile=profile,
+        )  # fmt: skip
+    root = args.out
     from panoptic_bench.datasets.nuscenes_spec import synthetic_scene_plan
 
     complete = ", ".join(synthetic_scene_plan(args.version, args.scenes)[1])

@@ -78,6 +78,8 @@ def parse_sequences(text: str) -> dict[str, int]:
         name, _, count = item.partition(":")
         if not name.isdigit() or not count.isdigit() or int(count) < 1:
             raise InputError(f"bad sequence spec {item!r}; use SEQ:FRAMES, e.g. 00:40,08:20")
+        if f"{int(name):02d}" in out:  # 08:1,8:2 would write sequence 08 twice
+            raise InputError(f"sequence {int(name):02d} given twice in {text!r}")
         out[f"{int(name):02d}"] = int(count)
     if not out:
         raise InputError("no sequence given; use SEQ:FRAMES, e.g. 00:40,08:20")
