@@ -67,17 +67,33 @@ def _main(argv: Sequence[str] | None) -> int:
     except Exception as exc:
         from panoptic_bench.io import full_disk_error
 
+        if _interrupted(exc):  # Ctrl-C inside a writer whose cleanup then failed
+            return _fail("panoptic-bench: interrupted", 130)
         cause = full_disk_error(exc) or exc  # a full disk hidden behind a cleanup error
         if not isinstance(cause, OSError) or cause.errno not in USER_OS_ERRORS:
             raise
         where = f"{cause.filename}: " if cause.filename else ""
-        return _fail(f"panoptic-bench: error: {where}{cause.strerror}", 2)
+        hint = "check the permissions" if cause.errno in PERMISSION else "free space"
+        msg = f"{where}{cause.strerror} while writing the output; {hint} or choose another output"
+        return _fail(f"panoptic-bench: error: {msg}", 2)
     except KeyboardInterrupt:
         return _fail("panoptic-bench: interrupted", 130)
 
 
 #: OSError numbers caused by the environment, not by a bug: full disk, quota, permissions.
-USER_OS_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM, errno.EROFS)
+PERMISSION = (errno.EACCES, errno.EPERM, errno.EROFS)
+USER_OS_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, *PERMISSION)
+
+
+def _interrupted(exc: BaseException | None) -> bool:
+    """True if a KeyboardInterrupt is in the context chain of ``exc``."""
+    for _ in range(16):
+        if exc is None:
+            return False
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _fail(message: str, status: int) -> int:

@@ -121,9 +121,16 @@ def write_array(path: str | Path, array: np.ndarray) -> None:
 
 
 def write_npz(path: str | Path, compressed: bool = True, **arrays: np.ndarray) -> None:
-    """Atomically write a ``.npz`` archive (the name is kept exactly, no suffix added)."""
-    with atomic_open(path, "wb") as fh:
-        (np.savez_compressed if compressed else np.savez)(fh, **arrays)
+    """Atomically write a ``.npz`` archive (the name is kept exactly, no suffix added).
+
+    The archive is built in memory, then written in one call: a full disk then fails in a plain
+    ``write`` (no half-closed ``ZipFile`` left to complain at garbage collection).
+    """
+    import io
+
+    buffer = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buffer, **arrays)
+    write_bytes(path, buffer.getvalue())
 
 
 def check_output_location(output: str | Path, inputs: tuple | list = ()) -> None:

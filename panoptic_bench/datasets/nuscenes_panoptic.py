@@ -105,8 +105,12 @@ def run_job(job: SampleJob) -> None:
     # Written straight into the private staging directory, which make_panoptic_labels renames
     # into place once every file is complete: the whole output appears atomically, so the
     # per-file temp file + fsync of io.write_npz (3-4 ms a file) would only cost time.
+    import io
+
+    buffer = io.BytesIO()  # built in memory: a full disk fails in one plain write
+    np.savez_compressed(buffer, data=labels)
     with open(job.out_path, "wb") as fh:
-        np.savez_compressed(fh, data=labels)
+        fh.write(buffer.getvalue())
 
 
 def _jobs(reader: NuScenesLidar, stage_dir: Path) -> tuple[list[SampleJob], list[dict]]:
