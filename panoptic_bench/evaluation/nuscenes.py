@@ -30,7 +30,7 @@ from panoptic_bench.datasets.nuscenes_reader import (
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import ensure_output_dir, write_json
 from panoptic_bench.metrics.by_range import RangeStats, panoptic_stats_by_range, point_range
-from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats
+from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats, preload
 
 IGNORE = 0
 
@@ -293,6 +293,7 @@ def evaluate_nuscenes(
     else:
         import multiprocessing as mp
 
+        preload()  # before the fork: workers share the kernel's imports
         pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
         results = pool.map(_score_chunk, chunks)
     try:

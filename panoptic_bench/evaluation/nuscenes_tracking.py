@@ -28,7 +28,7 @@ from panoptic_bench.evaluation.nuscenes import (
     _Job,
     load_checked,
 )
-from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats
+from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats, preload
 from panoptic_bench.metrics.tracking import SceneTracking, TrackingStats, tracking_frame
 
 __all__ = ["NuScenesTrackingEvaluation", "evaluate_nuscenes_tracking", "scene_jobs"]
@@ -198,6 +198,8 @@ def evaluate_nuscenes_tracking(
     pool = None
     if workers > 1 and len(tasks) > 1:
         import multiprocessing as mp
+
+        preload()  # before the fork: workers share the kernel's imports
 
         pool = ProcessPoolExecutor(min(workers, len(tasks)), mp_context=mp.get_context("fork"))
         results = pool.map(_score_scene, tasks)

@@ -30,7 +30,12 @@ from panoptic_bench.metrics.by_range import (
     parse_edges,
     point_range,
 )
-from panoptic_bench.metrics.panoptic import PanopticResult, PanopticStats, panoptic_stats
+from panoptic_bench.metrics.panoptic import (
+    PanopticResult,
+    PanopticStats,
+    panoptic_stats,
+    preload,
+)
 
 __all__ = [
     "SemanticKittiEvaluation",
@@ -263,6 +268,7 @@ def evaluate_semantickitti(
     bar = tqdm(total=len(jobs), desc="SemanticKITTI", unit="scan", disable=_disable(progress))
     pool = None
     if workers > 1 and len(jobs) > 1:
+        preload()  # before the fork: workers share the kernel's imports
         pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=_context())
         results = pool.map(_score, jobs, chunksize=max(1, len(jobs) // (8 * workers)))
     else:

@@ -31,7 +31,13 @@ import numpy as np
 EPS = 1e-15
 _DENSE_CELL_LIMIT = 1 << 21  # count cells with a dense bincount below this many possible cells
 
-__all__ = ["EPS", "PanopticResult", "PanopticStats", "panoptic_stats"]
+__all__ = ["EPS", "PanopticResult", "PanopticStats", "panoptic_stats", "preload"]
+
+
+def preload() -> None:
+    """Import what :func:`panoptic_stats` imports lazily (pandas); call it before forking
+    worker processes so that they share the import instead of paying it each."""
+    import pandas  # noqa: F401
 
 
 def _class_array(name: str, arr: np.ndarray, num_classes: int) -> np.ndarray:
