@@ -14,6 +14,7 @@ result does not depend on ``workers``.
 from __future__ import annotations
 
 import multiprocessing as mp
+import sys
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -40,6 +41,7 @@ from panoptic_bench.metrics.panoptic import (
 __all__ = [
     "SemanticKittiEvaluation",
     "check_label_ids",
+    "checked_train_ids",
     "evaluate_semantickitti",
     "label_stats",
     "prediction_problems",
@@ -155,14 +157,59 @@ class _Job:
     edges: tuple[float, ...] | None
 
 
+_INVALID = 255
+#: raw semantic id -> train id, 255 for a raw id that SemanticKITTI does not define
+_CHECKED_LUT = np.where(sk.LABELS.valid_raw, sk.LABELS.train_lut, _INVALID).astype(np.uint8)
+
+
+def checked_train_ids(labels: np.ndarray, n_points: int, path: Path, what: str) -> np.ndarray:
+    """Train ids of uint32 labels, checked like :func:`check_label_ids` in one table lookup.
+
+    Parameters
+    ----------
+    labels : array of shape (n,), uint32
+    n_points : int
+        Point count of the scan.
+    path : Path
+        File named in the error.
+    what : str
+        ``"prediction"`` or ``"ground truth"``.
+
+    Returns
+    -------
+    ndarray of shape (n_points,), uint8
+
+    Raises
+    ------
+    InputError
+        Wrong length or an unknown raw id (the message of :func:`check_label_ids`).
+    """
+    if len(labels) != n_points:
+        check_label_ids(labels, n_points, path, what)
+    if sys.byteorder == "little":  # the low halves as a strided view: no arithmetic
+        raw = labels.view(np.uint16)[0::2]
+    else:
+        raw = labels & 0xFFFF
+    sem = _CHECKED_LUT[raw]
+    if sem.max(initial=0) == _INVALID:
+        check_label_ids(labels, n_points, path, what)
+    return sem
+
+
 def _score(job: _Job) -> tuple[PanopticStats, RangeStats | None]:
     n = scan_point_count(job.ref.scan)
     gt = sk.read_labels(job.ref.label)
-    check_label_ids(gt, n, job.ref.label, "ground truth")
+    sg = checked_train_ids(gt, n, job.ref.label, "ground truth")
     pred = sk.read_labels(job.pred)
-    check_label_ids(pred, n, job.pred, "prediction")
-    ranges = None if job.edges is None else point_range(sk.read_scan(job.ref.scan))
-    return label_stats(pred, gt, min_points=job.min_points, ranges=ranges, edges=job.edges)
+    sp = checked_train_ids(pred, n, job.pred, "prediction")
+    kw = {"num_classes": sk.LABELS.num_classes, "ignore": sk.LABELS.ignore_ids}
+    stats = panoptic_stats(sp, pred, sg, gt, min_points=job.min_points, **kw)
+    if job.edges is None:
+        return stats, None
+    ranges = point_range(sk.read_scan(job.ref.scan))
+    return stats, panoptic_stats_by_range(
+        sp, pred, sg, gt, ranges, job.edges, min_points=job.min_points, **kw
+    )
 
 
 @dataclass(frozen=True)

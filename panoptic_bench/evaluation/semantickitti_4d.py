@@ -31,7 +31,7 @@ from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.errors import InputError
 from panoptic_bench.evaluation.semantickitti import (
     _context,
-    check_label_ids,
+    checked_train_ids,
     prediction_problems,
     scan_point_count,
 )
@@ -59,11 +59,6 @@ class _Job:
     edges: tuple[float, ...] | None
 
 
-_INVALID = 255
-#: raw semantic id -> train id, 255 for a raw id that SemanticKITTI does not define
-_CHECKED_LUT = np.where(sk.LABELS.valid_raw, sk.LABELS.train_lut, _INVALID).astype(np.uint8)
-
-
 def _split(labels: np.ndarray, n: int, path: Path, what: str) -> tuple[np.ndarray, np.ndarray]:
     """Checked ``(train ids uint8, instance ids uint16)`` of a label file of a scan of ``n`` points.
 
@@ -75,16 +70,8 @@ def _split(labels: np.ndarray, n: int, path: Path, what: str) -> tuple[np.ndarra
             "uint32 per point (raw class in the low 16 bits, instance id < 2**16 in the high 16)",
             path,
         )
-    if len(labels) != n:
-        check_label_ids(labels, n, path, what)  # raises with the count message
-    if sys.byteorder == "little":
-        halves = labels.view(np.uint16)
-        raw, inst = halves[0::2], halves[1::2]
-    else:
-        raw, inst = labels & 0xFFFF, labels >> 16
-    sem = _CHECKED_LUT[raw]
-    if sem.max(initial=0) == _INVALID:
-        check_label_ids(labels, n, path, what)  # raises with the unknown-id message
+    sem = checked_train_ids(labels, n, path, what)
+    inst = labels.view(np.uint16)[1::2] if sys.byteorder == "little" else labels >> 16
     return sem, inst
 
 
