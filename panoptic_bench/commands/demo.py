@@ -6,6 +6,8 @@ import argparse
 import os
 import shlex
 
+from panoptic_bench.commands.semantickitti import _sequences
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``demo`` command."""
@@ -51,6 +53,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run on the labelled SemanticKITTI scans under ROOT (e.g. ../shared/data/semantickitti)",
     )
     p.add_argument(
+        "--checkpoint",
+        default=None,
+        metavar="NAME|PATH",
+        help="with --real-scans: DS-Net checkpoint (a path or a shipped name such as "
+        "semantickitti-cpu; default: the shipped real-data model, else the synthetic one)",
+    )
+    p.add_argument(
+        "--sequences",
+        default=None,
+        type=_sequences,
+        metavar="S[,S...]",
+        help="with --real-scans: score only these sequences (e.g. 05,06)",
+    )
+    p.add_argument(
         "--no-checkpoint",
         action="store_true",
         help="ignore a shipped DS-Net checkpoint: simulated regression only",
@@ -63,6 +79,10 @@ def _command(args: argparse.Namespace, out: str) -> str:
     words = ["panoptic-bench", "demo"]
     if args.real_scans:
         words += ["--real-scans", args.real_scans]
+        if args.sequences:
+            words += ["--sequences", ",".join(args.sequences)]
+        if args.checkpoint:
+            words += ["--checkpoint", args.checkpoint]
     words += ["--out", out]
     words += [flag for flag, on in (("--quick", args.quick), ("--report-only", args.report_only),
               ("--no-checkpoint", args.no_checkpoint)) if on]  # fmt: skip
@@ -77,6 +97,10 @@ def handler(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     if args.real_scans and args.quick:
         raise InputError("--quick applies to the synthetic demo, not to --real-scans")
+    if not args.real_scans and (args.checkpoint or args.sequences):
+        raise InputError("--checkpoint and --sequences apply to --real-scans only")
+    if args.checkpoint and args.no_checkpoint:
+        raise InputError("--checkpoint and --no-checkpoint exclude each other")
     out = args.out or ("reports/real-scans" if args.real_scans else "reports/demo")
     if args.real_scans:  # the scans are only read: never write the report into them
         from panoptic_bench.io import check_output_location
@@ -91,7 +115,13 @@ def handler(args: argparse.Namespace) -> int:
     if args.real_scans:
         from panoptic_bench.demo.real import run_real_scans
 
-        result = run_real_scans(args.real_scans, out, **common)
+        seqs = tuple(args.sequences) if args.sequences else None
+        ckpt = None
+        if args.checkpoint:
+            from panoptic_bench.demo.steps import resolve_checkpoint_arg
+
+            ckpt = resolve_checkpoint_arg(args.checkpoint)
+        result = run_real_scans(args.real_scans, out, checkpoint=ckpt, sequences=seqs, **common)
     else:
         from panoptic_bench.demo.config import FULL, QUICK
         from panoptic_bench.demo.pipeline import run_demo

@@ -15,9 +15,17 @@ from panoptic_bench.demo.boxmerge import BOX_MERGE_NOTE, box_merge_semantickitti
 from panoptic_bench.demo.config import CLUSTERINGS, ClusteringSpec
 from panoptic_bench.demo.evaluate import evaluate_semantickitti_run
 
-__all__ = ["DSNET_CHECKPOINT", "SIMULATED_NOTE", "DemoResult", "KittiTarget", "run_kitti_methods"]
+__all__ = [
+    "DSNET_CHECKPOINT",
+    "REAL_CHECKPOINT",
+    "SIMULATED_NOTE",
+    "DemoResult",
+    "KittiTarget",
+    "run_kitti_methods",
+]
 
 DSNET_CHECKPOINT = "dsnet_synthetic.pt"
+REAL_CHECKPOINT = "dsnet_semantickitti_cpu.pt"  # default of --real-scans when shipped
 SIMULATED_NOTE = (
     "simulated regression, not a network result: semantics = ground truth, centres = "
     "ground-truth box centres + noise along the viewing ray (panoptic_bench.baselines."
@@ -70,6 +78,10 @@ class KittiTarget:
         Scans of the Fig. 3b bandwidth sweep.
     split : str
         ``run.json`` split (``val``: compared with the paper's Table 1).
+    checkpoint : Path, optional
+        DS-Net checkpoint to run; None = the shipped ``DSNET_CHECKPOINT`` when there is one.
+    per_sequence : bool
+        Also score the DS-Net predictions of each sequence on its own (one row each).
     """
 
     dataset: Path
@@ -79,6 +91,8 @@ class KittiTarget:
     seed: int = 0
     bandwidth_scans: int = 5
     split: str = "val"
+    checkpoint: Path | None = None
+    per_sequence: bool = False
 
 
 def _meta(target: KittiTarget, method: str, notes: str, ablation: dict) -> dict:
@@ -93,28 +107,44 @@ def _meta(target: KittiTarget, method: str, notes: str, ablation: dict) -> dict:
 
 
 def _dsnet(ws, target: KittiTarget, stages, result: DemoResult, workers: int) -> Path | None:
-    """DS-Net row from the shipped checkpoint; returns the prediction root (with centres)."""
-    ckpt = steps.find_checkpoint(DSNET_CHECKPOINT)
+    """DS-Net row from the target's (or the shipped) checkpoint; returns the prediction root."""
+    ckpt = target.checkpoint or steps.find_checkpoint(DSNET_CHECKPOINT)
     if ckpt is None:
         result.missing.append(
             f"DS-Net: no shipped checkpoint panoptic_bench/checkpoints/{DSNET_CHECKPOINT} "
             "(or its network code); the clusterings use the simulated regression"
         )
         return None
-    with stages("DS-Net inference (shipped synthetic checkpoint, CPU)"):
+    shown = steps.checkpoint_label(ckpt)
+    with stages(f"DS-Net inference ({shown}, CPU)"):
         pred = ws.predictions(f"{target.prefix}-dsnet")
         method = steps.dsnet_regression(ckpt, target.dataset, target.sequences, pred)
     with stages(f"evaluate {method}"):
         ablation = {"clustering": "Dynamic Shifting"}
         if method.startswith("DS-Net"):
             ablation["framework"] = "+ DS"
-        note = f"checkpoint panoptic_bench/checkpoints/{DSNET_CHECKPOINT}, CPU inference"
+        note = f"checkpoint {shown}, CPU inference" + steps.training_overlap_note(
+            ckpt, target.sequences
+        )
         run = ws.runs / f"{target.prefix}-dsnet"
         evaluate_semantickitti_run(
             target.dataset, pred, target.sequences, run, _meta(target, method, note, ablation),
             workers=workers, show=ws.show,
         )  # fmt: skip
         result.runs.append(run)
+    if target.per_sequence and len(target.sequences) > 1:
+        from panoptic_bench.datasets.semantickitti import list_scans
+
+        for seq in target.sequences:
+            with stages(f"evaluate {method}, sequence {seq}"):
+                run = ws.runs / f"{target.prefix}-dsnet-seq{seq}"
+                meta = _meta(target, f"{method} (seq {seq})", note, {})
+                n = len(list_scans(target.dataset, sequences=[seq]))
+                meta["data"] = f"{n} real SemanticKITTI scans, seq {seq}"
+                evaluate_semantickitti_run(
+                    target.dataset, pred, (seq,), run, meta, workers=workers, show=ws.show
+                )
+                result.runs.append(run)
     result.regression = "DS-Net"
     return pred
 

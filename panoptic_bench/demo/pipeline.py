@@ -22,10 +22,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from panoptic_bench.demo import steps
-from panoptic_bench.demo.boxmerge import BOX_MERGE_NOTE, box_merge_nuscenes_run
-from panoptic_bench.demo.config import CLUSTERINGS, FULL, DemoSize
-from panoptic_bench.demo.evaluate import evaluate_nuscenes_run
-from panoptic_bench.demo.kitti import SIMULATED_NOTE, DemoResult, KittiTarget, run_kitti_methods
+from panoptic_bench.demo.config import FULL, DemoSize
+from panoptic_bench.demo.kitti import DemoResult, KittiTarget, run_kitti_methods
+from panoptic_bench.demo.nuscenes import run_nuscenes_methods
 from panoptic_bench.demo.summary import Stages, summary_table
 
 __all__ = ["DemoResult", "drop_unreported_files", "prepare_workspace", "run_demo"]
@@ -75,57 +74,6 @@ def drop_unreported_files(runs: Sequence[Path]) -> None:
     for run in runs:
         for name in UNREPORTED_FILES:
             (Path(run) / name).unlink(missing_ok=True)
-
-
-def _nuscenes(ws, size, workers, stages, result) -> None:
-    """Stages 3-5 on the synthetic nuScenes dataroot (simulated regression)."""
-    eval_set = steps.NUS_EVAL_SET
-    centres = ws.centres("nuscenes-simulated")
-    with stages("simulated regression (nuScenes format, not a network result)"):
-        n = steps.simulate_nuscenes_centres(
-            ws.nuscenes, eval_set, centres, seed=size.seed, workers=workers
-        )
-    data = f"synthetic nuScenes {steps.NUS_VERSION} {eval_set} ({n} sweeps)"
-    for spec in CLUSTERINGS:
-        with stages(f"{spec.describe()} on nuScenes: cluster and evaluate"):
-            pred = ws.predictions(f"nuscenes-{spec.key}")
-            steps.cluster_nuscenes_centres(
-                ws.nuscenes, eval_set, centres, pred, spec, workers=workers
-            )
-            run = ws.runs / f"nuscenes-{spec.key}"
-            meta = {
-                "method": f"{spec.label} (simulated regression)",
-                "dataset": "nuscenes",
-                "split": eval_set,
-                "data": data,
-                "notes": f"{SIMULATED_NOTE.format(seed=size.seed)}; clustering "
-                f"{spec.describe()}, min 5 points, consensus fusion",
-            }
-            evaluate_nuscenes_run(
-                ws.nuscenes, steps.NUS_VERSION, eval_set, pred, run, meta,
-                workers=workers, show=ws.show,
-            )  # fmt: skip
-            result.runs.append(run)
-    with stages("box-merge with a simulated detector on nuScenes: merge and evaluate"):
-        pred = ws.predictions("nuscenes-boxmerge")
-        box_merge_nuscenes_run(
-            ws.nuscenes, steps.NUS_VERSION, eval_set, centres, ws.work / "nuscenes-boxes", pred,
-            seed=size.seed,
-        )  # fmt: skip
-        run = ws.runs / "nuscenes-boxmerge"
-        semantics = "ground truth (simulated regression)"
-        meta = {
-            "method": "Box-merge (simulated detector)",
-            "dataset": "nuscenes",
-            "split": eval_set,
-            "data": data,
-            "notes": BOX_MERGE_NOTE.format(seed=size.seed, semantics=semantics),
-        }
-        evaluate_nuscenes_run(
-            ws.nuscenes, steps.NUS_VERSION, eval_set, pred, run, meta,
-            workers=workers, show=ws.show,
-        )  # fmt: skip
-        result.runs.append(run)
 
 
 def run_demo(
@@ -192,7 +140,7 @@ def run_demo(
             with stages("viewer inputs: best and worst scan by PQ"):
                 write_demo_viewer(ws, target, result.runs)
         if "nuscenes" in parts:
-            _nuscenes(ws, size, workers, stages, result)
+            run_nuscenes_methods(ws, size, workers, stages, result, use_checkpoint)
         with stages("report: tables, figures, index.md"):
             build_report(result.runs, ws.out, command=command)
         if not keep_work:

@@ -1,8 +1,10 @@
 """``run_real_scans``: the demo's SemanticKITTI methods on real labelled scans.
 
-With the three real scans of ``../shared/data/semantickitti`` this builds the committed
-``reports/real-scans/``: simulated regression + the four clusterings with consensus fusion,
-and DS-Net with the shipped synthetic checkpoint once it exists.
+``make report`` builds the committed real-scan report sets with it: DS-Net with a checkpoint
+(by default the shipped real-data model ``dsnet_semantickitti_cpu.pt``, else the synthetic
+one), the four clusterings on its centres with and without consensus fusion, box-merge, and one
+DS-Net row per sequence when several are scored; or the simulated regression without a
+checkpoint.
 """
 
 from __future__ import annotations
@@ -12,16 +14,36 @@ import tempfile
 import time
 from pathlib import Path
 
-from panoptic_bench.demo.kitti import DemoResult, KittiTarget, run_kitti_methods
+from panoptic_bench.demo import steps
+from panoptic_bench.demo.kitti import (
+    DSNET_CHECKPOINT,
+    REAL_CHECKPOINT,
+    DemoResult,
+    KittiTarget,
+    run_kitti_methods,
+)
 from panoptic_bench.demo.pipeline import drop_unreported_files, prepare_workspace
 from panoptic_bench.demo.summary import Stages, summary_table
 from panoptic_bench.errors import InputError, InputErrors
 
-__all__ = ["real_target", "run_real_scans"]
+__all__ = ["default_real_checkpoint", "real_target", "run_real_scans"]
 
 
-def real_target(root: str | Path, *, seed: int = 0) -> KittiTarget:
-    """Every labelled scan of a SemanticKITTI root, as a :class:`KittiTarget` (prefix ``real``).
+def real_target(
+    root: str | Path,
+    *,
+    seed: int = 0,
+    sequences: tuple[str, ...] | None = None,
+    checkpoint: Path | None = None,
+) -> KittiTarget:
+    """The labelled scans of a SemanticKITTI root, as a :class:`KittiTarget` (prefix ``real``).
+
+    Parameters
+    ----------
+    sequences : tuple of str, optional
+        Only these sequences (default: every sequence under ``root``).
+    checkpoint : Path, optional
+        DS-Net checkpoint of the DS-Net row (see :func:`default_real_checkpoint`).
 
     Raises
     ------
@@ -30,14 +52,21 @@ def real_target(root: str | Path, *, seed: int = 0) -> KittiTarget:
     """
     from panoptic_bench.datasets.semantickitti import LABELS, list_scans
 
-    refs = list_scans(root)
+    refs = list_scans(root, sequences=list(sequences) if sequences else None)
     missing = [f"{r.label}: label file missing" for r in refs if not r.label.is_file()]
     if missing:
         raise InputErrors(missing, header="--real-scans needs labelled scans")
     seqs = tuple(dict.fromkeys(r.sequence for r in refs))
     split = "val" if all(int(s) in LABELS.splits["valid"] for s in seqs) else "train"
     data = f"{len(refs)} real SemanticKITTI scans, seq {', '.join(seqs)}"
-    return KittiTarget(Path(root), seqs, data, "real", seed, len(refs), split)
+    return KittiTarget(
+        Path(root), seqs, data, "real", seed, min(len(refs), 5), split, checkpoint, len(seqs) > 1
+    )
+
+
+def default_real_checkpoint() -> Path | None:
+    """The shipped real-data DS-Net checkpoint, else the synthetic one, else None."""
+    return steps.find_checkpoint(REAL_CHECKPOINT) or steps.find_checkpoint(DSNET_CHECKPOINT)
 
 
 def run_real_scans(
@@ -49,6 +78,8 @@ def run_real_scans(
     use_checkpoint: bool = True,
     command: str | None = None,
     seed: int = 0,
+    checkpoint: str | Path | None = None,
+    sequences: tuple[str, ...] | None = None,
 ) -> DemoResult:
     """Run the SemanticKITTI methods on the labelled scans under ``root``; report into ``out``.
 
@@ -64,11 +95,15 @@ def run_real_scans(
         Keep centres and predictions in ``out/work``. False (default): a temporary directory,
         deleted at the end, and ``bev.npz`` (real points) removed once drawn.
     use_checkpoint : bool
-        Add DS-Net with the shipped synthetic checkpoint when there is one.
+        Add DS-Net (and the clusterings on its centres); False: simulated regression only.
     command : str, optional
         Command line recorded in ``index.md``.
     seed : int
         Seed of the simulated regression.
+    checkpoint : str or Path, optional
+        DS-Net checkpoint (a path); default :func:`default_real_checkpoint`.
+    sequences : tuple of str, optional
+        Score only these sequences of ``root``.
 
     Returns
     -------
@@ -78,7 +113,10 @@ def run_real_scans(
 
     if not Path(root).is_dir():
         raise InputError("real-scan root not found; pass a SemanticKITTI root", root)
-    target = real_target(root, seed=seed)
+    ckpt = Path(checkpoint) if checkpoint else default_real_checkpoint()
+    if checkpoint and not ckpt.is_file():
+        raise InputError("checkpoint not found", ckpt)
+    target = real_target(root, seed=seed, sequences=sequences, checkpoint=ckpt)
     tmp = None if keep_work else tempfile.mkdtemp(prefix="panoptic-bench-real-")
     ws = prepare_workspace(out, tmp)
     result = DemoResult(ws.out / "index.md", [])

@@ -135,10 +135,72 @@ def find_checkpoint(name: str) -> Path | None:
     path = Path(str(resources.files("panoptic_bench"))) / "checkpoints" / name
     if not path.is_file():
         return None
-    for module in ("panoptic_bench.dsnet.model.network", "panoptic_bench.dsnet.model.dynamic_shift"):
+    for module in (
+        "panoptic_bench.dsnet.model.network",
+        "panoptic_bench.dsnet.model.dynamic_shift",
+    ):
         if importlib.util.find_spec(module) is None:
             return None
     return path
+
+
+def resolve_checkpoint_arg(text: str) -> Path:
+    """A ``--checkpoint`` value: a path, or the short name of a shipped checkpoint."""
+    from panoptic_bench.dsnet.checkpoint import resolve_checkpoint
+
+    return Path(resolve_checkpoint(text))
+
+
+def checkpoint_label(path: Path) -> str:
+    """``panoptic_bench/checkpoints/NAME`` for a shipped checkpoint, else the path as given."""
+    shipped = Path(str(resources.files("panoptic_bench"))) / "checkpoints"
+    path = Path(path)
+    if path.resolve().parent == shipped.resolve():
+        return f"panoptic_bench/checkpoints/{path.name}"
+    return path.as_posix()
+
+
+#: What each shipped checkpoint was trained on (its file records sequence ids, not the root).
+TRAINED_ON = {
+    "dsnet_synthetic.pt": "trained on the synthetic world only",
+    "backbone_synthetic.pt": "trained on the synthetic world only",
+    "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
+    "dsnet_semantickitti_cpu.pt": "trained on real scans of sequences 00-07, 09, 10",
+    "backbone_semantickitti_cpu.pt": "trained on real scans of sequences 00-07, 09, 10",
+    "dsnet_semantickitti_cpu_heldout0506.pt": (
+        "trained on real scans of sequences 00-04, 07, 09, 10 (05 and 06 held out)"
+    ),
+}
+
+
+def training_overlap_note(checkpoint: Path, sequences: Sequence[str]) -> str:
+    """What the checkpoint was trained on, for the notes of its rows ('; ...').
+
+    Shipped checkpoints are described by :data:`TRAINED_ON`; for another checkpoint the note
+    names the scored sequences that are among its training sequence ids (of whatever root it
+    was trained on: the file does not record the root).
+    """
+    from panoptic_bench.dsnet.checkpoint import load_checkpoint
+
+    checkpoint = Path(checkpoint)
+    if checkpoint_label(checkpoint).startswith("panoptic_bench/checkpoints/"):
+        if checkpoint.name in TRAINED_ON:
+            return f"; {TRAINED_ON[checkpoint.name]}"
+    data = load_checkpoint(checkpoint).config.data
+    if data.format.value != "semantickitti":
+        return ""
+    trained = set(data.train_sequences)
+    if not trained:
+        from panoptic_bench.datasets.semantickitti import LABELS
+
+        trained = {f"{int(s):02d}" for s in LABELS.splits.get(data.train_split, [])}
+    both = sorted(trained & set(sequences))
+    if not both:
+        return "; none of the scored sequences is among its training sequence ids"
+    return (
+        f"; its training sequence ids ({', '.join(sorted(trained))}) include the scored "
+        f"{', '.join(both)}: training-data numbers if it was trained on this root"
+    )
 
 
 def dsnet_regression(
