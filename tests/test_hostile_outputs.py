@@ -237,3 +237,29 @@ def test_nuscenes_bad_last_centres_leave_no_output(hostile_nuscenes, tmp_path, c
     (tmp_path / "o").mkdir()
     refused(cl, capsys, names=[last.name], inputs=[centers], watch=[tmp_path / "o"])
     assert digest(nus["dataroot"]) == before
+
+
+REFUSE_ONLY = {
+    "infer": lambda w: _infer(w),
+    "eval semantickitti-4d": lambda w: [
+        "eval", "semantickitti-4d", "--dataset", w["data"], "--predictions", w["pred"],
+        "--output", w["out"]],
+    "synth semantickitti": lambda w: ["synth", "semantickitti", "--out", w["out"], "--sequences",
+                                      "00:1"],
+    "synth nuscenes": lambda w: ["synth", "nuscenes", "--out", w["out"]],
+    "centers simulate nuscenes": lambda w: [
+        "centers", "simulate", "--dataset", w["data"], "--version", NU_VERSION, "--eval-set",
+        "mini_val", "--output", w["out"]],
+    "box-merge nuscenes": lambda w: [
+        "box-merge", "nuscenes", "--dataset", w["data"], "--version", NU_VERSION, "--eval-set",
+        "mini_val", "--semantic", w["pred"], "--boxes", w["boxes"], "--output", w["out"]],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", REFUSE_ONLY, ids=list(REFUSE_ONLY))
+def test_more_writers_refuse_a_non_empty_output(name, kw, capsys):
+    """Refused before any input is read (the inputs here need not even fit the command)."""
+    kw["out"].mkdir()
+    (kw["out"] / "keep.txt").write_text("unrelated\n")
+    refused(REFUSE_ONLY[name](kw), capsys, names=["--overwrite"], inputs=[kw["root"]],
+            watch=[kw["parent"]])  # fmt: skip
