@@ -276,3 +276,32 @@ def test_bad_training_config_refused_before_the_run_directory(case, kw, capsys):
             "--device", "cpu", "--no-progress"]  # fmt: skip
     refused(argv, capsys, names=["bad.yaml", words], inputs=[kw["root"]],
             watch=[kw["root"].parent])  # fmt: skip
+
+
+@pytest.mark.parametrize("size", [[0.0, 1.0, 1.0], [-1.0, 2.0, 1.5]], ids=["zero", "negative"])
+def test_nuscenes_submission_box_sizes(size, nus, hostile_nuscenes, tmp_path, capsys):
+    """box-merge nuscenes: a detection box of size <= 0 is refused, naming the submission."""
+    from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar
+    from panoptic_bench.evaluation.nuscenes import ChallengeClasses
+
+    reader = NuScenesLidar(nus["dataroot"], NU_VERSION)
+    lut = ChallengeClasses.from_nusc(reader.nusc).lut
+    seg = nus["root"] / "seg/lidarseg/mini_val"
+    seg.mkdir(parents=True)
+    for tok in reader.sample_data_tokens("mini_val"):
+        lut[reader.load_lidarseg(tok)].astype(np.uint8).tofile(seg / f"{tok}_lidarseg.bin")
+    sub = nus["root"] / "sub.json"
+    sim = ["box-merge", "simulate-nuscenes", "--dataset", nus["dataroot"], "--version",
+           NU_VERSION, "--eval-set", "mini_val", "--miss-rate", "0", "--output", sub]  # fmt: skip
+    from hostile_world import run
+
+    assert run(sim, capsys)[0] == 0
+    data = json.loads(sub.read_text())
+    first = next(t for t, boxes in data["results"].items() if boxes)
+    data["results"][first][0]["size"] = size
+    sub.write_text(json.dumps(data))
+    argv = ["box-merge", "nuscenes", "--dataset", nus["dataroot"], "--version", NU_VERSION,
+            "--eval-set", "mini_val", "--semantic", nus["root"] / "seg", "--boxes", sub,
+            "--output", nus["parent"] / "out"]  # fmt: skip
+    refused(argv, capsys, names=["sub.json", "sizes must be > 0"], inputs=[nus["root"]],
+            watch=[nus["root"].parent])  # fmt: skip

@@ -166,6 +166,10 @@ def load_boxes(path: str | Path, task: BoxTask, nusc: Any) -> tuple[dict[str, li
                 raise InputError(f"sample {t}: a box has a non-finite value", path)
             if np.linalg.norm(b.rotation) == 0:
                 raise InputError(f"sample {t}: a box has a zero rotation quaternion", path)
+            if min(b.size) <= 0:
+                raise InputError(
+                    f"sample {t}: a box has size {list(b.size)}; sizes must be > 0", path
+                )
     return boxes, meta
 
 
