@@ -54,6 +54,7 @@ SHIPPED: dict[str, str] = {
     "synthetic-backbone": "backbone_synthetic.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
+    "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
     "nuscenes-synthetic": "dsnet_nuscenes_synthetic.pt",
 }
 
