@@ -191,7 +191,7 @@ def test_convert_names_wrong_shapes_and_unmapped_keys(step2_state):
     assert convert_state(step2_state).step == 2
 
 
-def test_step1_is_detected_and_gets_an_initialised_offset_head(step2_state, tmp_path):
+def test_step1_is_detected_and_gets_an_initialised_offset_head(step2_state, tmp_path, tiny_root):
     state = {k: v for k, v in step2_state.items() if not k.startswith("ins_head.")}
     src = tmp_path / "sem_pretrain_random.pth"
     torch.save(state, src)  # a bare state dict
@@ -199,6 +199,14 @@ def test_step1_is_detected_and_gets_an_initialised_offset_head(step2_state, tmp_
     ck = load_checkpoint(tmp_path / "s1.pt")
     assert ck.stage == "semantic" and ck.shift is None
     assert torch.equal(ck.backbone["semantic_head.logits.bias"], state["sem_head.logits.bias"])
+    # as the official step-1 model: semantics only, no instances
+    from panoptic_bench.dsnet.data.datasets import SemanticKittiDataset
+    from panoptic_bench.dsnet.inference.run import load_predictor
+
+    pred, _ = load_predictor(ck)
+    assert pred.semantic_only
+    out = pred.predict(SemanticKittiDataset(tiny_root, sequences=["00"]).load(0))
+    assert out.inst.max() == 0 and np.array_equal(out.sem, out.sem_raw)
 
 
 def test_shipped_names(tmp_path):

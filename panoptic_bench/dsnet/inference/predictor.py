@@ -84,6 +84,9 @@ class Predictor:
         Replaces dynamic shifting / the config's clusterer; receives the same regressed centres.
     fusion : bool, optional
         Consensus fusion (default ``cfg.inference.fusion``).
+    semantic_only : bool
+        Never predict instances (all 0, no fusion), as the official code does with a step-1
+        (semantic) checkpoint, which has no trained offset head.
     keep_features : bool
         Return the point features (for the ``.npz`` exchange file).
     """
@@ -98,6 +101,7 @@ class Predictor:
         clusterer: Any = None,
         fusion: bool | None = None,
         keep_features: bool = False,
+        semantic_only: bool = False,
     ) -> None:
         self.backbone = backbone
         self.shift = shift if clusterer is None else None
@@ -108,6 +112,7 @@ class Predictor:
         self.clusterer = clusterer or make_clusterer(inf.clusterer, inf.bandwidth)
         self.fusion = inf.fusion if fusion is None else fusion
         self.keep_features = keep_features
+        self.semantic_only = bool(semantic_only)
         self.grid = build_grid(cfg)
         self._things = class_map.thing_lut()
         self._ignored = list(class_map.ignore_ids)
@@ -127,6 +132,7 @@ class Predictor:
         sem = logits.argmax(1).cpu().numpy().astype(np.int64)
         offsets = out.offsets.float().cpu().numpy()
         fused, inst, diag = sem, np.zeros(len(sem), dtype=np.int64), None
+        panoptic = panoptic and not self.semantic_only
         if panoptic and self.shift is None:
             fused, inst = assemble_panoptic(
                 sample.xyz,

@@ -32,6 +32,7 @@ from panoptic_bench.dsnet.checkpoint import (
     Checkpoint,
     build_backbone,
     build_shift,
+    is_official,
     load_checkpoint,
     load_weights,
 )
@@ -106,6 +107,7 @@ def load_predictor(
         clusterer=est,
         fusion=fusion,
         keep_features=keep_features,
+        semantic_only=is_official(cfg) and ckpt.stage == "semantic" and est is None,
     )
     return pred, ckpt
 
