@@ -71,6 +71,7 @@ def _full_disk_commands(k, n, out):
                           NU_VERSION, "--result-path", n["res"], "--eval-set", "mini_val",
                           "--output", out],
         "synth": ["synth", "semantickitti", "--out", out, "--sequences", "00:1"],
+        "synth nuscenes": ["synth", "nuscenes", "--out", out, "--scenes", "2", "--samples", "1"],
         "report": ["report", "--results", REPO / "reports/real-scans/runs/real-bfs", "--out", out],
         "checkpoint export": ["checkpoint", "export", ck, "--out", out.with_suffix(".pt")],
         "infer": ["infer", "--checkpoint", ck, "--data", k["data"], "--sequences", "08", "--out",
@@ -79,7 +80,7 @@ def _full_disk_commands(k, n, out):
 
 
 FULL_DISK = ["cluster", "eval", "remap", "centers", "make-labels", "eval nuscenes", "synth",
-             "report", "checkpoint export", "infer"]  # fmt: skip
+             "synth nuscenes", "report", "checkpoint export", "infer"]  # fmt: skip
 
 
 @pytest.mark.parametrize("name", FULL_DISK)
@@ -111,7 +112,7 @@ def _interrupt_on_second(monkeypatch, module, name):
     monkeypatch.setattr(module, name, fake)
 
 
-@pytest.mark.parametrize("name", ["cluster", "centers", "remap", "synth"])
+@pytest.mark.parametrize("name", ["cluster", "centers", "remap", "synth", "synth nuscenes"])
 def test_ctrl_c_while_writing_leaves_nothing(name, hostile_kitti, hostile_nuscenes, tmp_path,
                                              monkeypatch, capsys):  # fmt: skip
     parent = tmp_path / "o"
