@@ -11,6 +11,8 @@ HDL-64E scans (1/r^2 from the beam geometry, the rest from occlusion in rows of 
 
 from __future__ import annotations
 
+import csv
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -342,7 +344,8 @@ def compare(
     max_scans : int or None
         At most this many scans per tree, evenly spread (None: all).
     figure : str or Path, optional
-        Also write the first figure here (e.g. ``docs/synthetic_realism.png``).
+        Also write the figures here (e.g. ``docs/synthetic_realism.png`` and, next to it,
+        ``docs/synthetic_realism_sensor.png``).
     overwrite : bool
         Allow a non-empty ``out``.
     synthetic_scans, seed, profile
@@ -372,10 +375,11 @@ def compare(
     md = ["| statistic | real | synthetic |", "|---|---:|---:|"]
     md += [f"| {n} | {a:.4g} | {b:.4g} |" for n, a, b in rows]
     write_text(out / "realism.md", "\n".join(md) + "\n")
-    write_text(
-        out / "realism.csv",
-        "statistic,real,synthetic\n" + "".join(f"{n},{a:.6g},{b:.6g}\n" for n, a, b in rows),
-    )
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["statistic", "real", "synthetic"])
+    writer.writerows([n, f"{a:.6g}", f"{b:.6g}"] for n, a, b in rows)
+    write_text(out / "realism.csv", buf.getvalue())
 
     def _json(s: DatasetStats) -> dict:
         return {
@@ -392,7 +396,9 @@ def compare(
     _figure(real, synth, out / "realism.png")
     sensor_figure(real.hists, synth.hists, out / "realism_sensor.png")
     if figure is not None:
-        _figure(real, synth, Path(figure))
+        figure = Path(figure)
+        _figure(real, synth, figure)
+        sensor_figure(real.hists, synth.hists, figure.with_name(figure.stem + "_sensor.png"))
     return real, synth
 
 
