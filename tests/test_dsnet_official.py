@@ -279,3 +279,26 @@ def test_paper_configs_build_the_official_network():
         assert cfg.model == official.model, name
         assert cfg.grid == official.grid, name
         assert cfg.dynamic_shift.bandwidths == official.dynamic_shift.bandwidths
+
+
+def test_the_official_network_trains_all_three_stages(tmp_path, one_torch_thread):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from dsnet_tiny_world import write_tiny_world
+    from test_dsnet_train import TINY
+
+    from panoptic_bench.dsnet.checkpoint import load_checkpoint
+    from panoptic_bench.dsnet.training.train import train
+
+    world = write_tiny_world(tmp_path / "world", {"00": 2, "08": 1})
+    raw = {k: dict(v) for k, v in TINY.items()}
+    raw["model"]["variant"] = "official"
+    cfg = DSNetConfig.from_dict(raw)
+    for stage in ("semantic", "offset", "ds"):
+        train(cfg, world, tmp_path / "run", stage=stage, progress=False)
+    ck = load_checkpoint(tmp_path / "run" / "checkpoints" / "ds.pt")
+    assert ck.config.model.variant is NetworkVariant.OFFICIAL and ck.shift is not None
+    assert "mlps.0.1.running_mean" in ck.shift  # the DS MLP's BatchNorm was trained
+    assert not torch.equal(ck.shift["mlps.0.1.running_mean"], torch.zeros(4))
