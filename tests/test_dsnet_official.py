@@ -302,3 +302,38 @@ def test_the_official_network_trains_all_three_stages(tmp_path, one_torch_thread
     assert ck.config.model.variant is NetworkVariant.OFFICIAL and ck.shift is not None
     assert "mlps.0.1.running_mean" in ck.shift  # the DS MLP's BatchNorm was trained
     assert not torch.equal(ck.shift["mlps.0.1.running_mean"], torch.zeros(4))
+
+
+def test_official_ds_rules_seeds_on_xyz_and_nearest_seed_by_xyz():
+    import numpy as np
+
+    from panoptic_bench.dsnet.config import Clusterer
+    from panoptic_bench.dsnet.inference.clustering import make_clusterer
+    from panoptic_bench.dsnet.inference.official import (
+        official_seed_count,
+        official_seeds,
+        official_shift_instances,
+    )
+
+    assert official_seed_count(40, 50) == 40 and official_seed_count(10000, 10000) == 10000
+    assert official_seed_count(300, 50) in (50, 51)
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([rng.normal(0, 0.3, (150, 3)), rng.normal(20, 0.3, (150, 3))])
+    centres = pts + rng.normal(0, 0.05, pts.shape)
+    idx = official_seeds(pts, 50)
+    assert idx[0] == 0 and len(idx) == official_seed_count(300, 50) == len(set(idx.tolist()))
+    assert official_seeds(pts, 300) is None
+    d = np.linalg.norm(pts[:, None] - pts[idx][None], axis=2).min(1)  # FPS covers the points
+    assert d.max() <= np.linalg.norm(pts[idx[-1]] - pts[idx[:-1]], axis=1).min() + 1e-6
+    cfg = DSNetConfig.from_dict({"model": {"variant": "official", "init_size": 4}})
+    torch.manual_seed(0)
+    shift = build_shift(cfg, 4).eval()
+    feats = torch.randn(300, 4)
+    ms = make_clusterer(Clusterer.MEANSHIFT, 0.65)
+    inst, diag = official_shift_instances(shift, pts, centres, feats, ms, max_seeds=50)
+    assert inst.min() >= 1 and set(inst[:150]).isdisjoint(inst[150:])
+    seed_lab = diag["seed_labels"] + 1
+    nearest = np.linalg.norm(pts[:, None] - pts[idx][None], axis=2).argmin(1)
+    assert np.array_equal(inst, seed_lab[nearest])  # nearest seed by xyz, label + 1
+    one, _ = official_shift_instances(shift, pts[:1], centres[:1], feats[:1], ms, max_seeds=50)
+    assert one.tolist() == [0]  # a single seed: no instance
