@@ -304,6 +304,6 @@ def read_npz(path: str | Path, keys: tuple[str, ...] = ()) -> dict[str, np.ndarr
     missing = [k for k in keys if k not in arrays]
     if missing:
         raise InputError(
-            f"npz has no {', '.join(map(repr, missing))} (found: {sorted(arrays)})", path
+            f"npz has no {', '.join(map(repr, missing))} array (found: {sorted(arrays)})", path
         )
     return arrays

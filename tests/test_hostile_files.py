@@ -305,3 +305,14 @@ def test_nuscenes_submission_box_sizes(size, nus, hostile_nuscenes, tmp_path, ca
             "--output", nus["parent"] / "out"]  # fmt: skip
     refused(argv, capsys, names=["sub.json", "sizes must be > 0"], inputs=[nus["root"]],
             watch=[nus["root"].parent])  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("name", "corrupt", "words"), NUS_CASES[:3], ids=[c[0] for c in NUS_CASES[:3]]
+)
+def test_corrupt_predictions_in_validate_nuscenes(name, corrupt, words, nus, capsys):
+    """validate nuscenes lists a corrupt archive as one problem (never a zipfile traceback)."""
+    named = corrupt(nus)
+    argv = ["validate", "nuscenes", "--dataroot", nus["dataroot"], "--version", NU_VERSION,
+            "--result-path", nus["res"], "--eval-set", "mini_val"]  # fmt: skip
+    refused(argv, capsys, names=[named, words], inputs=[nus["root"]], watch=[nus["root"].parent])

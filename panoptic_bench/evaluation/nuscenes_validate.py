@@ -17,7 +17,6 @@ are <= 999) and non-zero instance ids only on thing classes (1..10).
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -63,13 +62,13 @@ def check_submission_json(path: Path) -> list[str]:
 
 def check_prediction(path: Path, n_points: int) -> list[str]:
     """Problems of one prediction ``.npz`` for a sweep of ``n_points`` points."""
-    try:
-        with np.load(path) as npz:
-            if "data" not in npz.files:
-                return [f"{path}: npz has no 'data' array (found: {npz.files})"]
-            data = npz["data"]
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        return [f"{path}: cannot read npz ({exc})"]
+    from panoptic_bench.errors import InputError
+    from panoptic_bench.io import read_npz
+
+    try:  # raw .npy, truncated, CRC / zlib errors, no 'data': one problem, never a traceback
+        data = read_npz(path, keys=("data",))["data"]
+    except InputError as exc:
+        return [str(exc)]
     out = []
     if data.dtype != np.uint16:
         out.append(f"{path}: 'data' must be uint16, got {data.dtype}")
