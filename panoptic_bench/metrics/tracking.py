@@ -117,20 +117,40 @@ def tracking_frame(
     sp, sg, xp, yg = sp[keep], sg[keep], xp[keep], yg[keep]
     thing = np.zeros(C, dtype=bool)
     thing[1 : n_things + 1] = True
+    size = 1 << _B
+    # a label determines its class (pred: label // 1000; gt: the class map), so a segment is
+    # its label: segments are counted with dense bincounts, pairs on the distinct labels
+    cls_p = np.zeros(size, dtype=np.int64)
+    cls_p[xp] = sp
+    cls_g = np.zeros(size, dtype=np.int64)
+    cls_g[yg] = sg
+    if not (np.array_equal(cls_p[xp], sp) and np.array_equal(cls_g[yg], sg)):
+        raise ValueError("every label must have one class (class = function of the label)")
+    g_count = np.bincount(yg, minlength=size)
+    a_count = np.bincount(xp, minlength=size)  # class-agnostic predicted labels
+    gk, ak = np.flatnonzero(g_count), np.flatnonzero(a_count)
+    gc, ac = g_count[gk], a_count[ak]
+    g_index = np.zeros(size, dtype=np.int64)
+    g_index[gk] = np.arange(len(gk))
+    a_index = np.zeros(size, dtype=np.int64)
+    a_index[ak] = np.arange(len(ak))
+
+    def pairs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(gt label, pred label, count) of the points in ``mask``, sorted by gt then pred."""
+        code = np.bincount(g_index[yg[mask]] * len(ak) + a_index[xp[mask]],
+                           minlength=len(gk) * len(ak))  # fmt: skip
+        cells = np.flatnonzero(code)
+        return gk[cells // len(ak)], ak[cells % len(ak)], code[cells]
 
     # class-specific segments and matching
     pin = ~ignored[sp]
-    pkey = (sp << _B) | xp
-    gkey = (sg << _B) | yg
-    pk, pc = _uniq(pkey[pin])
-    gk, gc = _uniq(gkey)
-    same = pin & (sp == sg)
-    ik, ic = _uniq((gkey[same] << 32) | xp[same])
-    ig, ipk = ik >> 32, ((ik >> 32 >> _B) << _B) | (ik & 0xFFFFFFFF)
-    g_area, p_area = _lookup(gk, gc, ig), _lookup(pk, pc, ipk)
-    iou = ic.astype(np.float32) / (g_area + p_area - ic).astype(np.float32)
+    p_count = np.bincount(xp[pin], minlength=size)
+    pk = np.flatnonzero(p_count)
+    pc = p_count[pk]
+    ig, ipk, ic = pairs(pin & (sp == sg))
+    iou = ic.astype(np.float32) / (g_count[ig] + p_count[ipk] - ic).astype(np.float32)
     tp = iou > 0.5
-    cl_of = ig >> _B
+    cl_of = cls_g[ig]
     tp_n = np.bincount(cl_of[tp], minlength=C)
     iou32 = np.zeros(C, dtype=np.float32)
     tcl = cl_of[tp]
@@ -139,28 +159,34 @@ def tracking_frame(
         iou32[c] = np.sum(tiou[tcl == c])  # float32 sum in key order, as the devkit
     g_matched = np.isin(gk, ig[tp])
     p_matched = np.isin(pk, ipk[tp])
-    fn = np.bincount((gk >> _B)[(gc >= min_points) & ~g_matched], minlength=C)
-    fp = np.bincount((pk >> _B)[(pc >= min_points) & ~p_matched], minlength=C)
+    fn = np.bincount(cls_g[gk[(gc >= min_points) & ~g_matched]], minlength=C)
+    fp = np.bincount(cls_p[pk[(pc >= min_points) & ~p_matched]], minlength=C)
     mt = tp & thing[cl_of]
-    match_keys, match_pred, match_iou = ig[mt], ik[mt] & 0xFFFFFFFF, iou[mt]
+    m_key = (cl_of[mt] << _B) | ig[mt]
+    m_order = np.argsort(m_key, kind="stable")
+    match_keys, match_pred, match_iou = m_key[m_order], ipk[mt][m_order], iou[mt][m_order]
 
     # tubes of thing classes (LSTQ) and class-agnostic tracks (TQ)
-    g_big = thing[gk >> _B] & (gc > min_points)
-    p_big = thing[pk >> _B] & (pc > min_points)
-    valid = np.isin(gkey, gk[g_big])
-    vk, vc = _uniq((gkey[valid] << 32) | xp[valid])
-    tubes = SequenceTubes(gk[g_big], gc[g_big], pk[p_big] & 0xFFFF, pc[p_big], vk, vc)
-    ak, ac = _uniq(xp)
-    v_g, v_p = vk >> 32, vk & 0xFFFFFFFF
-    a_iou = vc.astype(np.float32) / (_lookup(gk, gc, v_g) + _lookup(ak, ac, v_p) - vc).astype(
-        np.float32
-    )
+    g_big = thing[cls_g[gk]] & (gc > min_points)
+    p_big = thing[cls_p[pk]] & (pc > min_points)
+    valid = np.zeros(size, dtype=bool)
+    valid[gk[g_big]] = True
+    v_g, v_p, vc = pairs(valid[yg])
+    v_key = ((cls_g[v_g] << _B) | v_g) << 32 | v_p
+    v_order = np.argsort(v_key, kind="stable")
+    t_key = (cls_g[gk[g_big]] << _B) | gk[g_big]
+    t_order = np.argsort(t_key, kind="stable")
+    tubes = SequenceTubes(t_key[t_order], gc[g_big][t_order], pk[p_big], pc[p_big],
+                          v_key[v_order], vc[v_order])  # fmt: skip
+    a_iou = vc.astype(np.float32) / (g_count[v_g] + a_count[v_p] - vc).astype(np.float32)
     hit = a_iou > 0.5
     tracks = gk[g_big]
     matched_tr = np.isin(tracks, v_g[hit])
-    keys = np.concatenate([v_g[hit], tracks[~matched_tr]])
+    labels = np.concatenate([v_g[hit], tracks[~matched_tr]])
     preds = np.concatenate([v_p[hit], np.ones(int((~matched_tr).sum()), dtype=np.int64)])
-    order = np.lexsort((np.r_[np.zeros(hit.sum()), np.ones(len(keys) - hit.sum())], keys >> _B))
+    keys = (cls_g[labels] << _B) | labels
+    flag = np.r_[np.zeros(int(hit.sum())), np.ones(len(keys) - int(hit.sum()))]
+    order = np.lexsort((flag, keys >> _B))
     return FrameTracking(
         conf=conf,
         tp=tp_n.astype(np.int64),
