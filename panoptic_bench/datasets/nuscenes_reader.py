@@ -232,7 +232,12 @@ class NuScenesLidar:
     def load_points(self, sd_token: str) -> np.ndarray:
         """The sweep as float32 of shape (n_points, 5): x, y, z, intensity, ring (sensor frame)."""
         self.num_points(sd_token)
-        return np.fromfile(self.points_path(sd_token), dtype=np.float32).reshape(-1, POINT_DIMS)
+        path = self.points_path(sd_token)
+        points = np.fromfile(path, dtype=np.float32).reshape(-1, POINT_DIMS)
+        bad = ~np.isfinite(points).all(axis=1)
+        if bad.any():
+            raise InputError(f"{int(bad.sum())} point(s) with NaN or infinite values", path)
+        return points
 
     def label_path(self, sd_token: str, task: str = "lidarseg") -> Path:
         """Path of the ``lidarseg`` or ``panoptic`` label file of a sample_data token."""
