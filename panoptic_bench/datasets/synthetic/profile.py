@@ -75,6 +75,7 @@ class WorldProfile:
       the second row of buildings behind a non-building frontage; ``parking_prob`` per segment;
     - object density: mean spacing (m) per side of pedestrian groups ``ped_spacing``, parked
       bicycles ``bike_spacing``, cyclists ``cyclist_spacing``; ``traffic_gap`` range (m);
+      ``lead_car_prob``: a car ahead in the ego lane;
       ``parked_fill``: fraction of parking strips filled with cars;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas.
@@ -114,6 +115,7 @@ class WorldProfile:
     bike_spacing: float = 60.0
     cyclist_spacing: float = 70.0
     traffic_gap: tuple[float, float] = (25.0, 90.0)
+    lead_car_prob: float = 0.5
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -133,6 +135,7 @@ class WorldProfile:
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
             "parking_prob": 0.0 <= self.parking_prob <= 1.0,
             "parked_fill": 0.0 <= self.parked_fill <= 1.0,
+            "lead_car_prob": 0.0 <= self.lead_car_prob <= 1.0,
             "back_row_prob": 0.0 <= self.back_row_prob <= 1.0,
             "rem_dark_prob": 0.0 <= self.rem_dark_prob <= 1.0,
             "rem_dark_stuff": 0.0 <= self.rem_dark_stuff <= 1.0,
@@ -249,14 +252,15 @@ REALISTIC = WorldProfile(
     shoulder=(0.2, 1.0),
     sidewalk=(2.0, 4.0),
     green_depth=(8.0, 20.0),
-    frontage_p=(0.2, 0.55, 0.13, 0.12),
-    back_row_prob=0.4,
+    frontage_p=(0.12, 0.65, 0.13, 0.1),
+    back_row_prob=0.25,
     parking_prob=0.3,
-    parked_fill=0.45,
+    parked_fill=0.6,
     ped_spacing=250.0,
     bike_spacing=250.0,
     cyclist_spacing=600.0,
-    traffic_gap=(60.0, 200.0),
+    traffic_gap=(100.0, 300.0),
+    lead_car_prob=0.15,
     clutter_spacing=50.0,
     tree_spacing=6.0,
     bush_spacing=2.0,

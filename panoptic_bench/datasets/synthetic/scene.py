@@ -161,7 +161,7 @@ def _traffic(
         direction = -side
         for lane in range(n):
             if side < 0 and lane == ego_lane:
-                if rng.random() < 0.5:
+                if rng.random() < plan.profile.lead_car_prob:
                     y = side * (lane + 0.5) * lw
                     lead = build(
                         rng, "car", (rng.uniform(12.0, 25.0), y, 0.0), 0.0, (ego_speed, 0.0)
