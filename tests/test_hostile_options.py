@@ -86,6 +86,10 @@ CASES = [
     (ABLATE, "--threads", "0"),
     (ABLATE, "--max-val-scans", "-2"),
     (ABLATE, "--train-sequences", "08,08"),
+    (["demo", "--out", "{out}"], "--workers", "0"),
+    (["synth", "semantickitti", "--out", "{out}"], "--seed", "-1"),
+    (["synth", "nuscenes", "--out", "{out}"], "--scenes", "0"),
+    (["synth", "nuscenes", "--out", "{out}"], "--samples", "-3"),
 ]
 
 

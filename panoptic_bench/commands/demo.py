@@ -6,6 +6,7 @@ import argparse
 import os
 import shlex
 
+from panoptic_bench import cli_args as ca
 from panoptic_bench.commands.semantickitti import _sequences
 
 
@@ -35,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--workers",
-        type=int,
+        type=ca.workers,
         default=min(2, os.cpu_count() or 1),
         help="worker processes (default: min(2, CPUs)); results do not depend on it",
     )
