@@ -172,3 +172,9 @@ def test_one_vocabulary_for_scan_selection(capsys):
         assert ns.sequences == ["08", "09", "10"], words
     status, _, _ = run(["eval", "semantickitti", "--help"], capsys)
     assert status == 0
+
+
+def test_synth_sequence_given_twice(tmp_path, capsys):
+    """``synth --sequences 08:1,8:2`` names sequence 08 twice: refused before anything is written."""
+    argv = ["synth", "semantickitti", "--out", tmp_path / "out", "--sequences", "08:1,8:2"]
+    refused(argv, capsys, names=["08 given twice"], watch=[tmp_path])
