@@ -15,9 +15,9 @@ import numpy as np
 
 from panoptic_bench.datasets.synthetic.raycast import GROUND, cast, ray_directions
 from panoptic_bench.datasets.synthetic.scene import Scene
-from panoptic_bench.datasets.synthetic.shapes import normals
+from panoptic_bench.datasets.synthetic.shapes import Primitives, normals
 
-__all__ = ["HDL32E", "HDL64E", "LidarModel", "Sweep", "sweep"]
+__all__ = ["HDL32E", "HDL64E", "LidarModel", "Sweep", "sensor_frame", "sweep"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +109,34 @@ class Sweep:
         return int(self.xyz.shape[0])
 
 
+def sensor_frame(
+    scene: Scene, time: float, offset: tuple[float, float], height: float
+) -> tuple[Primitives, float, float, float, float]:
+    """The scene's primitives in the level sensor frame at ``time``.
+
+    Returns
+    -------
+    local : Primitives
+        Every primitive, sensor at the origin (x forward, y left, z up), ground at ``-height``.
+    sx, sy : float
+        Sensor position in the world.
+    c, s : float
+        Cosine and sine of the ego heading.
+    """
+    ex, ey, eyaw = scene.ego_pose(time)
+    c, s = np.cos(eyaw), np.sin(eyaw)
+    sx = ex + c * offset[0] - s * offset[1]
+    sy = ey + s * offset[0] + c * offset[1]
+    world = scene.primitives_at(time)
+    local = world.take(slice(None))
+    dx, dy = world.center[:, 0] - sx, world.center[:, 1] - sy
+    local.center = np.stack(
+        [c * dx + s * dy, -s * dx + c * dy, world.center[:, 2] - height], axis=1
+    )
+    local.yaw = world.yaw - eyaw
+    return local, sx, sy, c, s
+
+
 def sweep(
     scene: Scene,
     time: float,
@@ -134,18 +162,7 @@ def sweep(
     Sweep
         Returns ordered ring by ring (lowest ring first), each ring by azimuth.
     """
-    ex, ey, eyaw = scene.ego_pose(time)
-    c, s = np.cos(eyaw), np.sin(eyaw)
-    sx = ex + c * sensor_xy_offset[0] - s * sensor_xy_offset[1]
-    sy = ey + s * sensor_xy_offset[0] + c * sensor_xy_offset[1]
-    world = scene.primitives_at(time)
-    local = world.take(slice(None))
-    dx, dy = world.center[:, 0] - sx, world.center[:, 1] - sy
-    local.center = np.stack(
-        [c * dx + s * dy, -s * dx + c * dy, world.center[:, 2] - model.mount_height], axis=1
-    )
-    local.yaw = world.yaw - eyaw
-
+    local, sx, sy, c, s = sensor_frame(scene, time, sensor_xy_offset, model.mount_height)
     elevation = np.radians(np.asarray(model.elevation_deg))
     n_c = model.n_azimuth
     step = 2 * np.pi / n_c

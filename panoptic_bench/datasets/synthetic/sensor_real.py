@@ -110,21 +110,11 @@ def sweep_realistic(
     state: SensorState,
 ):
     """One sweep with the realistic sensor; same contract as :func:`.sensor.sweep`."""
-    from panoptic_bench.datasets.synthetic.sensor import Sweep
+    from panoptic_bench.datasets.synthetic.sensor import Sweep, sensor_frame
 
     height = model.mount_height + state.height
     max_range = profile.max_range or model.max_range
-    ex, ey, eyaw = scene.ego_pose(time)
-    c, s = np.cos(eyaw), np.sin(eyaw)
-    sx = ex + c * sensor_xy_offset[0] - s * sensor_xy_offset[1]
-    sy = ey + s * sensor_xy_offset[0] + c * sensor_xy_offset[1]
-    world = scene.primitives_at(time)
-    local = world.take(slice(None))
-    dx, dy = world.center[:, 0] - sx, world.center[:, 1] - sy
-    local.center = np.stack(
-        [c * dx + s * dy, -s * dx + c * dy, world.center[:, 2] - height], axis=1
-    )
-    local.yaw = world.yaw - eyaw
+    local, sx, sy, c, s = sensor_frame(scene, time, sensor_xy_offset, height)
     elev_deg = model.elevation_deg
     if profile.real_elevations and model.n_beams == len(REAL_HDL64E_ELEVATIONS):
         elev_deg = REAL_HDL64E_ELEVATIONS
