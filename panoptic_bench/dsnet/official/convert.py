@@ -112,7 +112,7 @@ def read_official(path: str | Path) -> tuple[dict[str, torch.Tensor], int]:
             f"pickled objects other than tensors: {type(exc).__name__}: {msg})",
             path,
         ) from None
-    if isinstance(raw, dict) and raw.get("format", "").startswith("panoptic-bench"):
+    if isinstance(raw, dict) and str(raw.get("format", "")).startswith("panoptic-bench"):
         raise InputError("already a panoptic-bench checkpoint; use it directly", path)
     epoch = 0
     if isinstance(raw, dict) and "model_state" in raw:
@@ -244,8 +244,9 @@ def import_official(
     cfg = official_config()
     lab = LABELS
     cmap = ClassMap("semantickitti", lab.class_names, lab.thing_ids, lab.stuff_ids, lab.ignore_ids)
-    torch.manual_seed(0)
-    backbone = build_backbone(cfg, cmap.num_classes)
+    with torch.random.fork_rng(devices=[]):  # seed-0 init, the caller's RNG untouched
+        torch.manual_seed(0)
+        backbone = build_backbone(cfg, cmap.num_classes)
     full = backbone.state_dict()
     unset = sorted(set(full) - set(res.backbone))
     if res.step >= 2 and unset:
