@@ -10,6 +10,7 @@ temporary sibling directory that is renamed into place only when every file is c
 error or Ctrl-C on the last scan leaves nothing behind. :func:`check_output_dir` and
 :func:`check_output_file` are the output policy shared by every command: never inside (or equal
 to) an input, never over a non-empty directory or an existing file without ``overwrite``.
+:func:`read_npz` reads an input archive, turning any corruption into an ``InputError``.
 """
 
 from __future__ import annotations
