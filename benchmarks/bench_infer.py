@@ -47,7 +47,13 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-CONFIGS = {"CPU": "configs/dsnet_synthetic_cpu.yaml", "paper": "configs/dsnet_semantickitti.yaml"}
+CONFIGS = {
+    "CPU": "configs/dsnet_synthetic_cpu.yaml",
+    "paper": "configs/dsnet_semantickitti.yaml",
+    "paper-nominal": "configs/dsnet_semantickitti.yaml",  # + NOMINAL_PAPER: the network before
+}
+# the paper config before it built the official network (nominal kernels, VFE width 256)
+NOMINAL_PAPER = {"variant": "nominal", "point_feature_dim": 256}
 KITTI = ROOT.parent / "shared" / "data" / "semantickitti"
 THREADS = 2  # default; --threads overrides (workers read PB_BENCH_THREADS)
 DEVICE = "cpu"  # --device overrides (workers read PB_BENCH_DEVICE)
@@ -164,6 +170,10 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
     device = torch.device(os.environ.get("PB_BENCH_DEVICE", "cpu"))
     rss_import = _rss_mib()
     cfg = load_config(ROOT / CONFIGS[config])
+    if config == "paper-nominal":
+        from panoptic_bench.dsnet.config import NetworkVariant
+
+        cfg = cfg.replace(model={**NOMINAL_PAPER, "variant": NetworkVariant.NOMINAL})
     sample, cmap = _load_scan(scan)
     torch.manual_seed(0)
     net = build_backbone(cfg, cmap.num_classes).to(device).eval()
@@ -343,6 +353,14 @@ def render(results: list[dict], load: tuple, repeats: dict, wall: float) -> str:
     for r in results:
         ratio = r["total_ds"] / r["total_bwf"]
         lines.append(f"| DS-Net / BwF total, {r['config']} config | {r['scan']} | {ratio:.2f}× |")
+    official, nominal = by.get(("paper", "real")), by.get(("paper-nominal", "real"))
+    if official and nominal:
+        for key, name in (("backbone", "backbone"), ("total_ds", "DS-Net total")):
+            ratio = nominal[key] / official[key]
+            lines.append(
+                f"| nominal / official paper network (effective kernels, VFE 256 vs 64), {name} "
+                f"| real | **{ratio:.2f}×** ({nominal[key]:.0f} vs {official[key]:.0f} ms) |"
+            )
     for scan in ("real", "synthetic"):
         cpu, paper = by.get(("CPU", scan)), by.get(("paper", scan))
         if cpu and paper:
@@ -377,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     THREADS, DEVICE = args.threads, args.device
-    repeats = {"CPU": 2, "paper": 1}
+    repeats = {"CPU": 2, "paper": 1, "paper-nominal": 1}
     # (config, scan, warm-up frames, kernel-map reference); the paper config forward costs
     # 10-60 s per frame on 2 shared cores, so it runs once per method, on the real scan
     runs = [("CPU", "real", False, True)]
@@ -385,6 +403,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = [("paper", "real", False, False)]
     elif not args.quick:
         runs += [("CPU", "synthetic", False, False), ("paper", "real", False, False)]
+        runs += [("paper-nominal", "real", False, False)]
     t0, load0 = time.perf_counter(), os.getloadavg()
     results = [run_worker(c, s, repeats[c], w, ref) for c, s, w, ref in runs]
     text = render(results, (load0, os.getloadavg()), repeats, time.perf_counter() - t0)
