@@ -61,9 +61,9 @@ def test_hdbscan_labels_do_not_depend_on_the_cpu():
     ("min_cluster_size", "min_samples", "eps", "single"),
     [(5, None, 0.0, False), (10, 3, 0.0, False), (5, None, 0.5, False), (2, 1, 0.0, True)],
 )
-def test_equal_to_hdbscan_prims_with_a_stable_sort(min_cluster_size, min_samples, eps, single,
+def test_equal_to_hdbscan_with_a_stable_sort(min_cluster_size, min_samples, eps, single,
                                                    monkeypatch):  # fmt: skip
-    """The reference: hdbscan's own Prim's pipeline, its argsort made stable (same tie order)."""
+    """The reference: ``hdbscan.HDBSCAN()`` itself, its argsort made stable (same tie order)."""
     import hdbscan
     import hdbscan.hdbscan_ as ref
 
@@ -73,7 +73,7 @@ def test_equal_to_hdbscan_prims_with_a_stable_sort(min_cluster_size, min_samples
     X = _tied_centres(1)
     want = hdbscan.HDBSCAN(
         min_cluster_size=min_cluster_size, min_samples=min_samples,
-        cluster_selection_epsilon=eps, allow_single_cluster=single, algorithm="prims_kdtree",
+        cluster_selection_epsilon=eps, allow_single_cluster=single, core_dist_n_jobs=1,
     ).fit(X).labels_  # fmt: skip
     got = hdbscan_labels(X, min_cluster_size, min_samples, eps, single)
     assert got.tolist() == want.tolist()

@@ -169,9 +169,9 @@ class DBSCAN(_Estimator):
 class HDBSCAN(_Estimator):
     """HDBSCAN (the ``hdbscan`` package's stages) with noise resolved by ``noise``.
 
-    Labels come from :func:`~panoptic_bench.baselines.hdbscan_tree.hdbscan_labels`: Prim's
-    spanning tree and a stable edge sort, so they are the same on every machine (plain
-    ``hdbscan.HDBSCAN`` orders tied edges differently on AVX-512 and other CPUs).
+    Labels come from :func:`~panoptic_bench.baselines.hdbscan_tree.hdbscan_labels`: the stages
+    of ``hdbscan.HDBSCAN()`` with a stable edge sort, so they are the same on every machine
+    (plain ``hdbscan.HDBSCAN`` orders tied edges differently on AVX-512 and other CPUs).
 
     Parameters
     ----------

@@ -7,15 +7,16 @@ order *equal* edge weights differently. Regressed instance centres are full of e
 mutual-reachability distances (points shifted onto the same centre, equal core distances), and
 the order in which tied edges enter the single-linkage tree changes the condensed tree and so
 the selected clusters: the same input gave different HDBSCAN rows on an AVX-512 and an AVX2
-machine. The Borůvka spanning tree ``hdbscan`` picks by default (``algorithm='best'``) adds a
-second dependence, on the kd-tree layout of the installed scikit-learn.
+machine.
 
-:func:`hdbscan_labels` runs the same stages with every order fixed: core distances from an exact
-k-nearest-neighbour query, the exact spanning tree of Prim's algorithm (``hdbscan``'s own
-``mst_linkage_core_vector``; deterministic for a given point order), edges ordered by weight
-with a *stable* sort (tied edges keep the order Prim's algorithm found them in: one defined
-result on every CPU), then ``hdbscan``'s condensed tree and excess-of-mass selection. The labels
-are exactly those of ``hdbscan.HDBSCAN(algorithm='prims_kdtree')`` run with a stable sort.
+:func:`hdbscan_labels` runs exactly the stages of ``hdbscan.HDBSCAN()`` for 3-D points (the
+Borůvka kd-tree spanning tree that ``algorithm='best'`` picks, ``approx_min_span_tree=True``,
+core distances on one thread), with one change: the edges are ordered by weight with a *stable*
+sort, so tied edges keep the order the spanning-tree algorithm emitted them in and the result
+is one defined array on every CPU. The labels are those of ``hdbscan.HDBSCAN()`` run with a
+stable ``argsort``. The spanning tree itself is compiled code without CPU dispatch (the same on
+every machine); a future ``hdbscan`` or scikit-learn kd-tree could change its tie choices, which
+``tests/test_hostile_reproducible.py`` (rebuilding a committed table) would then report.
 """
 
 from __future__ import annotations
@@ -23,6 +24,9 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["hdbscan_labels", "spanning_tree_order"]
+
+#: kd-tree leaf size of ``hdbscan.HDBSCAN`` (its default; Borůvka uses a third of it).
+LEAF_SIZE = 40
 
 
 def spanning_tree_order(edges: np.ndarray) -> np.ndarray:
@@ -70,8 +74,8 @@ def hdbscan_labels(
     ndarray of shape (n_samples,), int64
         Cluster ids ``0..K-1``; ``-1`` marks noise.
     """
-    from hdbscan._hdbscan_linkage import label, mst_linkage_core_vector
-    from hdbscan.dist_metrics import DistanceMetric
+    from hdbscan._hdbscan_boruvka import KDTreeBoruvkaAlgorithm
+    from hdbscan._hdbscan_linkage import label
     from hdbscan.hdbscan_ import _tree_to_labels
     from sklearn.neighbors import KDTree
 
@@ -87,8 +91,11 @@ def hdbscan_labels(
     if not cluster_selection_epsilon >= 0:
         raise ValueError(f"cluster_selection_epsilon must be >= 0, got {cluster_selection_epsilon}")
     k = max(1, min(n - 1, k))
-    core = KDTree(X, metric="euclidean").query(X, k=k + 1)[0][:, -1].copy(order="C")
-    edges = mst_linkage_core_vector(X, core, DistanceMetric.get_metric("euclidean"), 1.0)
+    kd = KDTree(X, metric="euclidean", leaf_size=LEAF_SIZE)
+    boruvka = KDTreeBoruvkaAlgorithm(
+        kd, k, metric="euclidean", leaf_size=LEAF_SIZE // 3, approx_min_span_tree=True, n_jobs=1
+    )
+    edges = boruvka.spanning_tree()
     tree = label(np.ascontiguousarray(edges[spanning_tree_order(edges)]))
     labels = _tree_to_labels(
         X,
