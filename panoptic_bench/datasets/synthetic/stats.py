@@ -21,7 +21,6 @@ import numpy as np
 from panoptic_bench.datasets.synthetic.realism import MEASURES, aggregate, scan_measures
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import (
-    atomic_open,
     check_output_location,
     ensure_output_dir,
     write_json,
@@ -238,80 +237,6 @@ def _median_range(s: DatasetStats) -> float:
     return float(RANGE_BINS[1:][np.searchsorted(c, 0.5)])
 
 
-def _figure(real: DatasetStats, synth: DatasetStats, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from panoptic_bench.datasets.semantickitti import LABELS
-
-    colors = {"real": "#1f77b4", "synthetic": "#ff7f0e"}
-    fig, ax = plt.subplots(2, 3, figsize=(13, 7.2), dpi=72)
-    pairs = (("real", real), ("synthetic", synth))
-    for i, (name, s) in enumerate(pairs):
-        ax[0, 0].bar(
-            i,
-            s.points_per_scan.mean() / 1e3,
-            color=colors[name],
-            yerr=s.points_per_scan.std() / 1e3,
-        )
-        ax[0, 2].bar(
-            i, s.instances_per_scan.mean(), color=colors[name], yerr=s.instances_per_scan.std()
-        )
-    for a, title in (
-        (ax[0, 0], "points per scan (thousands)"),
-        (ax[0, 2], "thing instances per scan"),
-    ):
-        a.set_xticks([0, 1], ["real", "synthetic"])
-        a.set_title(title)
-    k = np.arange(1, len(LABELS.class_names))
-    for j, (name, s) in enumerate(pairs):
-        ax[0, 1].bar(
-            k + (j - 0.5) * 0.4, 100 * s.class_freq[1:], 0.4, color=colors[name], label=name
-        )
-    ax[0, 1].set_yscale("log")
-    ax[0, 1].set_xticks(k, LABELS.class_names[1:], rotation=90, fontsize=7)
-    ax[0, 1].set_title("class frequency (% of points)")
-    ax[0, 1].legend(fontsize=8)
-    xs = np.array([10.0, 50.0])
-    for name, s in pairs:
-        ax[1, 0].scatter(
-            s.car_range,
-            s.car_points,
-            s=10,
-            alpha=0.6,
-            color=colors[name],
-            label=f"{name} (slope {s.slope:.2f})",
-        )
-        sel = (s.car_range >= 10) & (s.car_range <= 50)
-        if np.isfinite(s.slope) and sel.any():
-            b = np.polyfit(np.log(s.car_range[sel]), np.log(s.car_points[sel]), 1)
-            ax[1, 0].plot(xs, np.exp(np.polyval(b, np.log(xs))), color=colors[name])
-    ax[1, 0].set_xscale("log")
-    ax[1, 0].set_yscale("log")
-    ax[1, 0].axvspan(10, 50, color="0.9", zorder=0)
-    ax[1, 0].set_xlabel("mean range of the car (m)")
-    ax[1, 0].set_title("points per car instance vs range")
-    ax[1, 0].legend(fontsize=8)
-    centers = (RANGE_BINS[:-1] + RANGE_BINS[1:]) / 2
-    for name, s in pairs:
-        ax[1, 1].plot(centers, s.range_hist, color=colors[name], label=name)
-    ax[1, 1].set_yscale("log")
-    ax[1, 1].set_xlabel("horizontal range (m)")
-    ax[1, 1].set_title("range histogram (fraction of points)")
-    ax[1, 1].legend(fontsize=8)
-    ax[1, 2].axis("off")
-    text = "\n".join(f"{n[:40]}: {a:.3g} | {b:.3g}" for n, a, b in _rows(real, synth)[:6])
-    ax[1, 2].text(
-        0, 1, "real | synthetic\n\n" + text, va="top", fontsize=8, family="monospace", wrap=True
-    )
-    fig.tight_layout()
-    with atomic_open(path, "wb") as fh:
-        fig.savefig(fh, format="png")
-    plt.close(fig)
-
-
 def compare(
     real_root: str | Path,
     synth_root: str | Path | None,
@@ -356,7 +281,7 @@ def compare(
     (DatasetStats, DatasetStats)
         Real and synthetic statistics.
     """
-    from panoptic_bench.datasets.synthetic.realism_figure import sensor_figure
+    from panoptic_bench.datasets.synthetic.realism_figure import overview_figure, sensor_figure
 
     if max_scans is not None and max_scans < 1:
         raise InputError(f"--max-scans {max_scans} is out of range; use at least 1")
@@ -393,11 +318,11 @@ def compare(
         {"rows": [[n, _finite(a), _finite(b)] for n, a, b in rows], "real": _json(real),
          "synthetic": _json(synth)},
     )  # fmt: skip
-    _figure(real, synth, out / "realism.png")
+    overview_figure(real, synth, rows, out / "realism.png")
     sensor_figure(real.hists, synth.hists, out / "realism_sensor.png")
     if figure is not None:
         figure = Path(figure)
-        _figure(real, synth, figure)
+        overview_figure(real, synth, rows, figure)
         sensor_figure(real.hists, synth.hists, figure.with_name(figure.stem + "_sensor.png"))
     return real, synth
 
