@@ -25,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         required=True,
         help="checkpoint written by `train` or `checkpoint import-dsnet`, or a shipped name: "
         "synthetic, synthetic-backbone, semantickitti-cpu, semantickitti-cpu-backbone, "
-        "nuscenes-synthetic",
+        "semantickitti-cpu-heldout, nuscenes-synthetic",
     )
     p.add_argument("--data", required=True, help="dataset root")
     p.add_argument(
