@@ -88,7 +88,20 @@ def test_real_sequences_match_4d_pls(real_4d, tmp_path, capsys) -> None:
     assert "LSTQ:" in (out / "scores.txt").read_text()
 
 
-def test_workers_and_min_points_option(real_4d, tmp_path) -> None:
+def test_pool_size_rule(monkeypatch) -> None:
+    from panoptic_bench.evaluation import workers
+
+    assert workers.pool_size(4, 10) == 1  # too little work for a pool
+    assert workers.pool_size(2, 10 * workers.MIN_ITEMS_PER_WORKER) == 2
+    assert workers.pool_size(8, 10 * workers.MIN_ITEMS_PER_WORKER, n_jobs=3) == 3
+    monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)
+    assert workers.pool_size(2, 15) == 2
+
+
+def test_workers_and_min_points_option(real_4d, tmp_path, monkeypatch) -> None:
+    from panoptic_bench.evaluation import workers
+
+    monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real pool for 15 frames
     root, pred, frames = real_4d
     outs = []
     for w in ("1", "2"):

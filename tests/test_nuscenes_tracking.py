@@ -145,7 +145,10 @@ def test_submission_meta_task_wins(gt_root, truth, tmp_path, capsys):
     assert (out2 / "segmentation-result.json").is_file()
 
 
-def test_workers_give_the_same_numbers(gt_root, truth, tmp_path):
+def test_workers_give_the_same_numbers(gt_root, truth, tmp_path, monkeypatch):
+    from panoptic_bench.evaluation import workers
+
+    monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real pool for 5 sweeps
     res = _write(tmp_path / "res", _noisy(truth, np.random.default_rng(3)))
     got = []
     for w in ("1", "2"):

@@ -28,6 +28,7 @@ from panoptic_bench.datasets.nuscenes_reader import (
     load_panoptic_npz,
 )
 from panoptic_bench.errors import InputError
+from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.io import ensure_output_dir, write_json
 from panoptic_bench.metrics.by_range import RangeStats, panoptic_stats_by_range, point_range
 from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats, preload
@@ -287,14 +288,15 @@ def evaluate_nuscenes(
     ]
     disable = None if progress is None else not progress
     bar = tqdm(total=len(jobs), desc=f"nuScenes {eval_set}", unit="sweep", disable=disable)
-    if workers == 1 or len(chunks) < 2:
+    n_workers = workers_module.pool_size(workers, len(jobs), len(chunks))
+    if n_workers == 1:
         results = map(_score_chunk, chunks)
         pool = None
     else:
         import multiprocessing as mp
 
         preload()  # before the fork: workers share the kernel's imports
-        pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+        pool = ProcessPoolExecutor(n_workers, mp_context=mp.get_context("fork"))
         results = pool.map(_score_chunk, chunks)
     try:
         for per_sample in results:

@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar
 from panoptic_bench.errors import InputError
+from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.evaluation.nuscenes import (
     IGNORE,
     ChallengeClasses,
@@ -196,12 +197,13 @@ def evaluate_nuscenes_tracking(
     bar = tqdm(total=n_samples, desc=f"nuScenes tracking {eval_set}", unit="sweep",
                disable=disable)  # fmt: skip
     pool = None
-    if workers > 1 and len(tasks) > 1:
+    n_workers = workers_module.pool_size(workers, n_samples, len(tasks))
+    if n_workers > 1:
         import multiprocessing as mp
 
         preload()  # before the fork: workers share the kernel's imports
 
-        pool = ProcessPoolExecutor(min(workers, len(tasks)), mp_context=mp.get_context("fork"))
+        pool = ProcessPoolExecutor(n_workers, mp_context=mp.get_context("fork"))
         results = pool.map(_score_scene, tasks)
     else:
         results = map(_score_scene, tasks)

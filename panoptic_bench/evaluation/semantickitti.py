@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.errors import InputError
+from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.metrics.by_range import (
     RangeStats,
     panoptic_stats_by_range,
@@ -314,10 +315,11 @@ def evaluate_semantickitti(
     ranges = None if edges is None else RangeStats.zeros(edges, C, ignore)
     bar = tqdm(total=len(jobs), desc="SemanticKITTI", unit="scan", disable=_disable(progress))
     pool = None
-    if workers > 1 and len(jobs) > 1:
+    n_workers = workers_module.pool_size(workers, len(jobs))
+    if n_workers > 1:
         preload()  # before the fork: workers share the kernel's imports
-        pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=_context())
-        results = pool.map(_score, jobs, chunksize=max(1, len(jobs) // (8 * workers)))
+        pool = ProcessPoolExecutor(n_workers, mp_context=_context())
+        results = pool.map(_score, jobs, chunksize=max(1, len(jobs) // (8 * n_workers)))
     else:
         results = map(_score, jobs)
     try:

@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.errors import InputError
+from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.evaluation.semantickitti import (
     _context,
     checked_train_ids,
@@ -252,8 +253,9 @@ def evaluate_semantickitti_4d(
             raise InputError(problems[0] + more + hint)
     seqs = tuple(dict.fromkeys(r.sequence for r in refs))
     size = _CHUNK
-    if workers > 1:  # enough chunks to keep every worker busy
-        size = max(1, min(_CHUNK, math.ceil(len(refs) / (4 * workers))))
+    n_workers = workers_module.pool_size(workers, len(refs))
+    if n_workers > 1:  # enough chunks to keep every worker busy
+        size = max(1, min(_CHUNK, math.ceil(len(refs) / (4 * n_workers))))
     jobs = []
     for seq in seqs:
         s_refs = [r for r in refs if r.sequence == seq]
@@ -266,8 +268,8 @@ def evaluate_semantickitti_4d(
     disable = None if progress is None else not progress
     bar = tqdm(total=len(refs), desc="SemanticKITTI 4D", unit="scan", disable=disable)
     pool = None
-    if workers > 1 and len(jobs) > 1:
-        pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=_context())
+    if n_workers > 1 and len(jobs) > 1:
+        pool = ProcessPoolExecutor(min(n_workers, len(jobs)), mp_context=_context())
         results = pool.map(_score, jobs)
     else:
         results = map(_score, jobs)
