@@ -165,3 +165,41 @@ def test_density_policy_spreads_to_nearest_kept_point():
     plain = Host()
     plain.cfg = DSNetConfig()
     assert with_density_policy(plain) is plain
+
+
+@pytest.mark.parametrize("match", [False, True])
+def test_infer_and_validation_apply_the_density_policy(tmp_path, match):
+    """``load_predictor`` (infer, demo) wraps the predictor exactly when the config asks."""
+    import torch
+
+    from panoptic_bench.datasets.semantickitti import LABELS
+    from panoptic_bench.dsnet.checkpoint import (
+        Checkpoint,
+        build_backbone,
+        save_checkpoint,
+    )
+    from panoptic_bench.dsnet.data.datasets import ClassMap
+    from panoptic_bench.dsnet.inference.predictor import Predictor
+    from panoptic_bench.dsnet.inference.run import load_predictor
+
+    cfg = DSNetConfig.from_dict(
+        {
+            "grid": {"size": [16, 16, 4]},
+            "model": {"init_size": 4, "point_hidden": [8], "point_feature_dim": 8},
+            "augment": {"max_points": 300},
+            "inference": {"match_training_density": match},
+        }
+    )
+    lab = LABELS
+    cmap = ClassMap("semantickitti", lab.class_names, lab.thing_ids, lab.stuff_ids, lab.ignore_ids)
+    torch.manual_seed(0)
+    backbone = build_backbone(cfg, cmap.num_classes)
+    path = tmp_path / "c.pt"
+    save_checkpoint(Checkpoint("offset", 1, cfg, cmap, backbone.state_dict(), None), path)
+    pred, _ = load_predictor(path)
+    assert isinstance(pred, DensityMatchedPredictor) is match
+    if not match:
+        assert isinstance(pred, Predictor)
+    sample = _Data().load(0)
+    out = pred.predict(sample)
+    assert len(out.sem) == len(sample.xyz)

@@ -38,6 +38,7 @@ from panoptic_bench.dsnet.checkpoint import (
 )
 from panoptic_bench.dsnet.config import Clusterer, DatasetFormat, DSNetConfig
 from panoptic_bench.dsnet.data.datasets import LidarDataset, NuScenesDataset, SemanticKittiDataset
+from panoptic_bench.dsnet.data.density import with_density_policy
 from panoptic_bench.dsnet.inference.clustering import make_clusterer
 from panoptic_bench.dsnet.inference.predictor import Predictor, ScanPrediction
 from panoptic_bench.errors import InputError
@@ -109,7 +110,7 @@ def load_predictor(
         keep_features=keep_features,
         semantic_only=is_official(cfg) and ckpt.stage == "semantic" and est is None,
     )
-    return pred, ckpt
+    return with_density_policy(pred), ckpt
 
 
 def root_format(root: str | Path) -> DatasetFormat | None:

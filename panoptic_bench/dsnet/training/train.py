@@ -335,10 +335,13 @@ def _step_loss(stage, model, samples, ctx: TrainContext, weights, frozen: bool) 
 
 def _validate(stage: str, backbone: nn.Module, shift: nn.Module | None, ctx: TrainContext) -> dict:
     """Validation metrics (fractions) of this stage, accumulated over every rank."""
+    from panoptic_bench.dsnet.data.density import with_density_policy
     from panoptic_bench.dsnet.inference.predictor import Predictor, evaluate_dataset
 
-    predictor = Predictor(
-        backbone, shift if stage == "ds" else None, ctx.cfg, ctx.class_map, ctx.info.device
+    predictor = with_density_policy(
+        Predictor(
+            backbone, shift if stage == "ds" else None, ctx.cfg, ctx.class_map, ctx.info.device
+        )
     )
     summary = evaluate_dataset(
         predictor,
