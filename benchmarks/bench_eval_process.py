@@ -234,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="fewer frames and runs")
     args = ap.parse_args(argv)
     (small, big), (s_small, s_big), runs = (
-        ((5, 20), (2, 4), 2) if args.quick else ((10, 200), (2, 16), 3)
+        ((5, 20), (2, 4), 2) if args.quick else ((10, 200), (2, 32), 4)
     )
     tmp = Path(tempfile.mkdtemp(prefix="bench-eval-process-"))
     rows = []
