@@ -87,7 +87,9 @@ def tracking_frame(
     sem_pred, sem_gt : array of shape (n_points,), integer in [0, num_classes)
         Predicted and ground-truth challenge classes.
     pred, gt : array of shape (n_points,), integer in [0, 65535)
-        Full panoptic labels (the instance ids of matching).
+        Full panoptic labels (the instance ids of matching). Each label must have one class
+        (as in Panoptic nuScenes, where the class is ``label // 1000`` or its mapping), so a
+        segment is its label and counting needs no sort.
     num_classes : int
     n_things : int
         Thing classes are ``1..n_things`` (the devkit's ``min_stuff_cls_id - 1``).
@@ -97,6 +99,11 @@ def tracking_frame(
     Returns
     -------
     FrameTracking
+
+    Raises
+    ------
+    ValueError
+        Mismatched lengths, values out of range, or a label with two classes.
     """
     C = int(num_classes)
     sp = np.asarray(sem_pred).astype(np.int64).ravel()
