@@ -174,3 +174,15 @@ def test_bad_input(gt_root, truth, tmp_path, capsys, case):
     err = capsys.readouterr().err
     assert str(victim) in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_kernel_rejects_a_label_with_two_classes():
+    from panoptic_bench.metrics.tracking import tracking_frame
+
+    labels = np.array([4001, 4001, 11000])
+    kw = {"num_classes": 17, "n_things": 10}
+    tracking_frame(labels // 1000, labels, labels // 1000, labels, **kw)  # consistent: fine
+    with pytest.raises(ValueError, match="one class"):
+        tracking_frame(np.array([4, 5, 11]), labels, labels // 1000, labels, **kw)
+    with pytest.raises(ValueError, match="same length"):
+        tracking_frame(labels[:2] // 1000, labels, labels // 1000, labels, **kw)
