@@ -15,10 +15,10 @@ from __future__ import annotations
 import ast
 import functools
 import importlib.util
-import json
 from pathlib import Path
 from typing import Any
 
+from panoptic_bench.datasets.nuscenes_reader import _read_table
 from panoptic_bench.errors import InputError
 
 __all__ = ["NuScenesTables", "devkit_splits"]
@@ -52,19 +52,6 @@ def devkit_splits() -> dict[str, list[str]]:
     return {s: list(names[s]) for s in _SPLIT_NAMES}
 
 
-def _load(path: Path) -> list[dict]:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            rows = json.load(fh)
-    except FileNotFoundError:
-        raise InputError("nuScenes table missing", path) from None
-    except (OSError, ValueError) as exc:
-        raise InputError(f"cannot read nuScenes table ({exc})", path) from None
-    if not isinstance(rows, list):
-        raise InputError("nuScenes table is not a JSON list", path)
-    return rows
-
-
 class NuScenesTables:
     """JSON tables of a dataroot with the lookups of ``nuscenes.NuScenes`` used for scoring.
 
@@ -82,10 +69,10 @@ class NuScenesTables:
         self.table_root = Path(dataroot) / version
         self.table_names = list(_REQUIRED)
         for name in _REQUIRED:
-            setattr(self, name, _load(self.table_root / f"{name}.json"))
+            setattr(self, name, _read_table(self.table_root / f"{name}.json"))
         for name in _OPTIONAL:
             if (self.table_root / f"{name}.json").is_file():
-                setattr(self, name, _load(self.table_root / f"{name}.json"))
+                setattr(self, name, _read_table(self.table_root / f"{name}.json"))
                 self.table_names.append(name)
         self._token2ind: dict[str, dict[str, int]] = {}
         try:

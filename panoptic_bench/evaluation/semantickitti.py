@@ -46,6 +46,7 @@ __all__ = [
     "evaluate_semantickitti",
     "label_stats",
     "prediction_problems",
+    "require_predictions",
     "scan_point_count",
 ]
 
@@ -148,6 +149,16 @@ def prediction_problems(
                     "in the dataset"
                 )
     return missing, extra
+
+
+def require_predictions(refs: Sequence[sk.ScanRef], predictions: str | Path) -> None:
+    """Raise :class:`InputError` naming the first missing, then the first extra, prediction."""
+    missing, extra = prediction_problems(refs, predictions)
+    for problems in (missing, extra):
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            hint = "; 'panoptic-bench validate semantickitti' lists every problem"
+            raise InputError(problems[0] + more + hint)
 
 
 @dataclass(frozen=True)
@@ -302,12 +313,7 @@ def evaluate_semantickitti(
         except ValueError as exc:
             raise InputError(f"--by-range: {exc}") from None
     refs = sk.list_scans(dataset, split=split, sequences=sequences)
-    missing, extra = prediction_problems(refs, predictions)
-    for problems in (missing, extra):
-        if problems:
-            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-            hint = "; 'panoptic-bench validate semantickitti' lists every problem"
-            raise InputError(problems[0] + more + hint)
+    require_predictions(refs, predictions)
 
     jobs = [_Job(r, sk.prediction_path(predictions, r), min_points, edges) for r in refs]
     C, ignore = sk.LABELS.num_classes, sk.LABELS.ignore_ids

@@ -33,7 +33,7 @@ from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.evaluation.semantickitti import (
     _context,
     checked_train_ids,
-    prediction_problems,
+    require_predictions,
     scan_point_count,
 )
 from panoptic_bench.metrics.by_range import parse_edges, point_range
@@ -245,12 +245,7 @@ def evaluate_semantickitti_4d(
         except ValueError as exc:
             raise InputError(f"--by-range: {exc}") from None
     refs = sk.list_scans(dataset, split=split, sequences=sequences)
-    missing, extra = prediction_problems(refs, predictions)
-    for problems in (missing, extra):
-        if problems:
-            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-            hint = "; 'panoptic-bench validate semantickitti' lists every problem"
-            raise InputError(problems[0] + more + hint)
+    require_predictions(refs, predictions)
     seqs = tuple(dict.fromkeys(r.sequence for r in refs))
     size = _CHUNK
     n_workers = workers_module.pool_size(workers, len(refs))
