@@ -15,12 +15,14 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
     """Add ``nuscenes`` to the sub-commands of ``eval``."""
     p = eval_subparsers.add_parser(
         "nuscenes",
-        help="Panoptic nuScenes PQ/SQ/RQ/mIoU (same numbers as the devkit evaluator)",
+        help="Panoptic nuScenes PQ/SQ/RQ/mIoU, or with --task tracking PAT/PTQ/LSTQ/MOTSA "
+        "(same numbers as the devkit evaluator)",
         description=(
-            "Score RES/panoptic/<eval-set>/<sample_data_token>_panoptic.npz (key 'data': "
+            "Score RES/panoptic/<eval-set>/<sample_data_token>_panoptic.npz (key 'data', uint16: "
             "challenge class x 1000 + instance) against the dataroot's panoptic ground truth. "
-            "Writes segmentation-result.json (devkit structure), scores.txt, scores.json and "
-            "per_class.csv."
+            "Writes segmentation-result.json or, for --task tracking (frames in scene order, "
+            "instance ids consistent along each scene), tracking-result.json (devkit structure), "
+            "plus scores.txt, scores.json and per_class.csv."
         ),
     )
     p.add_argument("--dataroot", required=True, help="nuScenes dataroot with panoptic labels")
