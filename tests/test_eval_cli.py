@@ -94,7 +94,12 @@ def real_pred(kitti_root: Path, tmp_path_factory) -> tuple[Path, list]:
     return root, scans
 
 
-def test_eval_real_scans_matches_official(kitti_root, real_pred, tmp_path, capsys) -> None:
+def test_eval_real_scans_matches_official(
+    kitti_root, real_pred, tmp_path, capsys, monkeypatch
+) -> None:
+    import panoptic_bench.evaluation.workers as workers
+
+    monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real 2-process pool
     pred_root, scans = real_pred
     out1, out2 = tmp_path / "w1", tmp_path / "w2"
     assert main(eval_args(kitti_root, pred_root, out1, "--sequences", "00")) == 0
@@ -258,7 +263,10 @@ def test_eval_bad_arguments(tmp_path: Path, capsys) -> None:
     assert not (tmp_path / "o").exists() and not (data / "scores").exists()
 
 
-def test_eval_synthetic_split_workers(tmp_path: Path) -> None:
+def test_eval_synthetic_split_workers(tmp_path: Path, monkeypatch) -> None:
+    import panoptic_bench.evaluation.workers as workers
+
+    monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real 2-process pool
     data, pred = make_tree(tmp_path, {"08": 4})
     assert main(eval_args(data, pred, tmp_path / "o", "--workers", "2")) == 0
     scores = json.loads((tmp_path / "o" / "scores.json").read_text())
