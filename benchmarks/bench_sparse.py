@@ -30,10 +30,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lidar_scene import lidar_scan  # noqa: E402
 
 from panoptic_bench.dsnet.model.network import PanopticBackbone  # noqa: E402
+from panoptic_bench.dsnet.model.voxelize import CylinderGrid, collate  # noqa: E402
 from panoptic_bench.dsnet.sparse import SparseTensor, weight_to_dense  # noqa: E402
 from panoptic_bench.dsnet.sparse import functional as spf  # noqa: E402
 from panoptic_bench.dsnet.sparse.kmap import downsample_map, submanifold_map  # noqa: E402
-from panoptic_bench.dsnet.model.voxelize import CylinderGrid, collate  # noqa: E402
 from panoptic_bench.io import write_text  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
