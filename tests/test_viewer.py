@@ -202,6 +202,16 @@ def test_bad_semantickitti_input(kitti_root, kitti_run, tmp_path, capsys, case, 
     assert not list(tmp_path.rglob("*.tmp"))
 
 
+def test_existing_out_needs_overwrite(kitti_run, tmp_path, capsys, kitti_root):
+    out = tmp_path / "view.html"
+    out.write_text("keep me")
+    assert main(_kitti_args(kitti_root, kitti_run, out)) == 2
+    assert "--out exists; pass --overwrite" in capsys.readouterr().err
+    assert out.read_text() == "keep me"
+    assert main([*_kitti_args(kitti_root, kitti_run, out), "--overwrite"]) == 0
+    assert out.read_text().startswith("<!DOCTYPE html>") or "plotly" in out.read_text()[:5000]
+
+
 def test_out_inside_an_input_tree_is_refused(kitti_run, tmp_path, capsys, kitti_root):
     out = kitti_run / "pred" / "view.html"
     assert main(_kitti_args(kitti_root, kitti_run, out)) == 2

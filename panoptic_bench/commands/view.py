@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench.cli_args import add_overwrite
+
 _COMMON = (
     "Writes ONE self-contained HTML file (plotly.js embedded, no network request) with the "
     "prediction and the ground truth side by side in two 3-D views whose cameras move together. "
@@ -17,6 +19,7 @@ _COMMON = (
 def _common(p: argparse.ArgumentParser, centres_help: str) -> None:
     p.add_argument("--centers", default=None, metavar="ROOT", help=centres_help)
     p.add_argument("--out", required=True, metavar="FILE", help="HTML file to write")
+    add_overwrite(p, "an existing --out file")
     p.add_argument(
         "--max-points",
         type=int,
@@ -77,7 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_nuscenes)
 
 
-def _check_out(out: str, inputs: tuple) -> None:
+def _check_out(out: str, inputs: tuple, overwrite: bool) -> None:
     from pathlib import Path
 
     from panoptic_bench.errors import InputError
@@ -88,6 +91,8 @@ def _check_out(out: str, inputs: tuple) -> None:
     for src in inputs:
         if src is not None and Path(src).resolve() in path.parents:
             raise InputError(f"--out lies inside the input tree {src}; write elsewhere", out)
+    if path.exists() and not overwrite:
+        raise InputError("--out exists; pass --overwrite to replace it", out)
 
 
 def _write(args: argparse.Namespace, scan, classes, title: str, given: bool) -> int:
@@ -106,7 +111,7 @@ def run_semantickitti(args: argparse.Namespace) -> int:
     """Handler of ``view semantickitti``."""
     from panoptic_bench.viewer.load import load_semantickitti
 
-    _check_out(args.out, (args.dataset, args.predictions, args.centers))
+    _check_out(args.out, (args.dataset, args.predictions, args.centers), args.overwrite)
     scan, classes = load_semantickitti(
         args.dataset, args.scan, predictions=args.predictions, centers=args.centers
     )
@@ -121,7 +126,7 @@ def run_nuscenes(args: argparse.Namespace) -> int:
 
     if args.min_inst_points < 0:
         raise InputError(f"--min-inst-points must be >= 0, got {args.min_inst_points}")
-    _check_out(args.out, (args.dataroot, args.result_path, args.centers))
+    _check_out(args.out, (args.dataroot, args.result_path, args.centers), args.overwrite)
     scan, classes = load_nuscenes(
         args.dataroot,
         args.version,
