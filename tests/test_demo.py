@@ -113,7 +113,7 @@ def test_demo_size_round_trip_and_bad_keys():
     [
         (["--real-scans", "missing-root", "--quick"], "--quick applies"),
         (["--real-scans", "no/such/root"], "real-scan root not found"),
-        (["--workers", "0"], "--workers must be >= 1"),
+        (["--workers", "0"], "--workers: must be an integer >= 1"),
     ],
 )
 def test_cli_errors_are_one_line(argv, message, tmp_path, capsys):
