@@ -84,6 +84,8 @@ def test_training_overlap_note_names_shipped_and_foreign_checkpoints(tmp_path):
     [
         (["demo", "--checkpoint", "x.pt"], "apply to --real-scans only"),
         (["demo", "--sequences", "05"], "apply to --real-scans only"),
+        (["demo", "--split", "valid"], "apply to --real-scans only"),
+        (["demo", "--real-scans", "R", "--sequences", "05,05"], "sequence 05 given twice"),
         (
             ["demo", "--real-scans", "R", "--checkpoint", "x.pt", "--no-checkpoint"],
             "exclude each other",
@@ -93,7 +95,7 @@ def test_training_overlap_note_names_shipped_and_foreign_checkpoints(tmp_path):
 def test_demo_option_errors(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert message in err and "Traceback" not in err
+    assert message in err.strip().splitlines()[-1] and "Traceback" not in err
 
 
 def test_nuscenes_dsnet_rows_from_a_shipped_checkpoint(tmp_path, monkeypatch):

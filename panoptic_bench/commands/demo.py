@@ -7,7 +7,6 @@ import os
 import shlex
 
 from panoptic_bench import cli_args as ca
-from panoptic_bench.commands.semantickitti import _sequences
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -60,12 +59,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="with --real-scans: DS-Net checkpoint (a path or a shipped name such as "
         "semantickitti-cpu; default: the shipped real-data model, else the synthetic one)",
     )
-    p.add_argument(
-        "--sequences",
-        default=None,
-        type=_sequences,
-        metavar="S[,S...]",
-        help="with --real-scans: score only these sequences (e.g. 05,06)",
+    ca.add_scan_selection(
+        p, split_help="with --real-scans: score only the scans of this SemanticKITTI split"
     )
     p.add_argument(
         "--no-checkpoint",
@@ -80,6 +75,8 @@ def _command(args: argparse.Namespace, out: str) -> str:
     words = ["panoptic-bench", "demo"]
     if args.real_scans:
         words += ["--real-scans", args.real_scans]
+        if args.split and not args.sequences:
+            words += ["--split", args.split]
         if args.sequences:
             words += ["--sequences", ",".join(args.sequences)]
         if args.checkpoint:
@@ -98,8 +95,8 @@ def handler(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     if args.real_scans and args.quick:
         raise InputError("--quick applies to the synthetic demo, not to --real-scans")
-    if not args.real_scans and (args.checkpoint or args.sequences):
-        raise InputError("--checkpoint and --sequences apply to --real-scans only")
+    if not args.real_scans and (args.checkpoint or args.sequences or args.split):
+        raise InputError("--checkpoint, --split and --sequences apply to --real-scans only")
     if args.checkpoint and args.no_checkpoint:
         raise InputError("--checkpoint and --no-checkpoint exclude each other")
     out = args.out or ("reports/real-scans" if args.real_scans else "reports/demo")
@@ -116,7 +113,8 @@ def handler(args: argparse.Namespace) -> int:
     if args.real_scans:
         from panoptic_bench.demo.real import run_real_scans
 
-        seqs = tuple(args.sequences) if args.sequences else None
+        chosen = ca.selected_sequences(args.split, args.sequences)
+        seqs = tuple(chosen) if chosen else None
         ckpt = None
         if args.checkpoint:
             from panoptic_bench.demo.steps import resolve_checkpoint_arg
