@@ -248,22 +248,9 @@ def evaluate_nuscenes(
     -------
     NuScenesEvaluation
     """
-    if workers < 1:
-        raise InputError(f"--workers must be >= 1, got {workers}")
-    if min_inst_points < 0:
-        raise InputError(f"--min-inst-points must be >= 0, got {min_inst_points}")
-    reader = reader or NuScenesLidar.tables_only(dataroot, version)
-    if not hasattr(reader.nusc, "panoptic") or len(reader.nusc.panoptic) == 0:
-        raise InputError(
-            "no panoptic ground truth in this dataroot; generate it with "
-            f"'panoptic-bench nuscenes make-labels --dataroot {dataroot} --version {version} "
-            f"--out-dir {dataroot}'",
-            reader.table_root / "panoptic.json",
-        )
-    classes = ChallengeClasses.from_nusc(reader.nusc)
-    pred_dir = Path(result_path) / "panoptic" / eval_set
-    if not pred_dir.is_dir():
-        raise InputError("prediction folder panoptic/<eval_set> not found", pred_dir)
+    reader, classes, pred_dir = open_scoring_inputs(
+        dataroot, version, result_path, eval_set, workers, min_inst_points, reader
+    )
     tokens = reader.sample_data_tokens(eval_set)
     jobs = []
     for tok in tokens:
@@ -347,3 +334,40 @@ def write_nuscenes_result(
         by_range=evaluation.by_range,
         extra={"n_samples": evaluation.n_samples},
     )
+
+
+def open_scoring_inputs(
+    dataroot: str | Path,
+    version: str,
+    result_path: str | Path,
+    eval_set: str,
+    workers: int,
+    min_inst_points: int,
+    reader: NuScenesLidar | None = None,
+) -> tuple[NuScenesLidar, ChallengeClasses, Path]:
+    """Check the options and open what every nuScenes scoring task reads.
+
+    Returns the table reader, the challenge classes and ``RESULT_PATH/panoptic/<eval_set>``.
+
+    Raises
+    ------
+    InputError
+        Bad ``workers`` / ``min_inst_points``, no panoptic ground truth, or no prediction folder.
+    """
+    if workers < 1:
+        raise InputError(f"--workers must be >= 1, got {workers}")
+    if min_inst_points < 0:
+        raise InputError(f"--min-inst-points must be >= 0, got {min_inst_points}")
+    reader = reader or NuScenesLidar.tables_only(dataroot, version)
+    if not hasattr(reader.nusc, "panoptic") or len(reader.nusc.panoptic) == 0:
+        raise InputError(
+            "no panoptic ground truth in this dataroot; generate it with "
+            f"'panoptic-bench nuscenes make-labels --dataroot {dataroot} --version {version} "
+            f"--out-dir {dataroot}'",
+            reader.table_root / "panoptic.json",
+        )
+    classes = ChallengeClasses.from_nusc(reader.nusc)
+    pred_dir = Path(result_path) / "panoptic" / eval_set
+    if not pred_dir.is_dir():
+        raise InputError("prediction folder panoptic/<eval_set> not found", pred_dir)
+    return reader, classes, pred_dir

@@ -28,6 +28,7 @@ from panoptic_bench.evaluation.nuscenes import (
     NuScenesEvaluation,
     _Job,
     load_checked,
+    open_scoring_inputs,
 )
 from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats, preload
 from panoptic_bench.metrics.tracking import SceneTracking, TrackingStats, tracking_frame
@@ -175,21 +176,9 @@ def evaluate_nuscenes_tracking(
     -------
     NuScenesTrackingEvaluation
     """
-    if workers < 1:
-        raise InputError(f"--workers must be >= 1, got {workers}")
-    if min_inst_points < 0:
-        raise InputError(f"--min-inst-points must be >= 0, got {min_inst_points}")
-    reader = reader or NuScenesLidar.tables_only(dataroot, version)
-    if not hasattr(reader.nusc, "panoptic") or len(reader.nusc.panoptic) == 0:
-        raise InputError(
-            "no panoptic ground truth in this dataroot; generate it with "
-            "'panoptic-bench nuscenes make-labels'",
-            reader.table_root / "panoptic.json",
-        )
-    classes = ChallengeClasses.from_nusc(reader.nusc)
-    pred_dir = Path(result_path) / "panoptic" / eval_set
-    if not pred_dir.is_dir():
-        raise InputError("prediction folder panoptic/<eval_set> not found", pred_dir)
+    reader, classes, pred_dir = open_scoring_inputs(
+        dataroot, version, result_path, eval_set, workers, min_inst_points, reader
+    )
     scenes = scene_jobs(reader, eval_set, pred_dir)
     tasks = [(name, jobs, classes, min_inst_points) for name, jobs in scenes]
     n_samples = sum(len(j) for _, j in scenes)
