@@ -19,59 +19,20 @@ True
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from panoptic_bench.dsnet.config_enums import (  # noqa: F401 - re-exported
+    Clusterer,
+    DatasetFormat,
+    LRSchedule,
+    NetworkVariant,
+    ShiftKernel,
+)
 from panoptic_bench.dsnet.config_fields import section_from_dict, section_to_dict
 from panoptic_bench.errors import InputError
-
-
-class DatasetFormat(enum.Enum):
-    """On-disk layout of a data root."""
-
-    SEMANTICKITTI = "semantickitti"
-    NUSCENES = "nuscenes"
-
-
-class Clusterer(enum.Enum):
-    """Heuristic clustering of regressed centres (names of ``panoptic_bench.baselines``)."""
-
-    MEANSHIFT = "meanshift"
-    BFS = "bfs"
-    DBSCAN = "dbscan"
-    HDBSCAN = "hdbscan"
-
-
-class ShiftKernel(enum.Enum):
-    """Dynamic-shifting kernel: candidate weighting (paper) or direct bandwidth regression."""
-
-    FLAT = "flat"
-    GAUSSIAN = "gaussian"
-
-
-class NetworkVariant(enum.Enum):
-    """Which DS-Net network a config builds.
-
-    ``nominal``: every conv acts with its nominal asymmetric kernel, offset head conv ->
-    LeakyReLU -> BatchNorm, dynamic-shift MLP Linear -> ReLU -> Linear, cells of range / size,
-    argmax over the non-ignored classes (the network of panoptic-bench's CPU checkpoints).
-    ``official``: the network of the DS-Net code and its released checkpoints (spconv 1.x
-    effective kernels, offset head conv -> BatchNorm -> LeakyReLU, dynamic-shift MLP with
-    BatchNorm, cells of range / (size - 1), the official inference rules).
-    """
-
-    NOMINAL = "nominal"
-    OFFICIAL = "official"
-
-
-class LRSchedule(enum.Enum):
-    """Learning rate over a stage's epochs: constant (paper) or flat then half cosine."""
-
-    CONSTANT = "constant"
-    COSINE = "cosine"
 
 
 @dataclass(frozen=True)
