@@ -91,6 +91,7 @@ def test_real_sequences_match_4d_pls(real_4d, tmp_path, capsys) -> None:
 def test_pool_size_rule(monkeypatch) -> None:
     from panoptic_bench.evaluation import workers
 
+    monkeypatch.setattr(workers, "free_cpus", lambda: (8, "test: 8 free"))
     assert workers.pool_size(4, 10) == 1  # too little work for a pool
     assert workers.pool_size(2, 10 * workers.MIN_ITEMS_PER_WORKER) == 2
     assert workers.pool_size(8, 10 * workers.MIN_ITEMS_PER_WORKER, n_jobs=3) == 3
@@ -102,6 +103,7 @@ def test_workers_and_min_points_option(real_4d, tmp_path, monkeypatch) -> None:
     from panoptic_bench.evaluation import workers
 
     monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real pool for 15 frames
+    monkeypatch.setattr(workers, "free_cpus", lambda: (8, "test: 8 free"))
     root, pred, frames = real_4d
     outs = []
     for w in ("1", "2"):

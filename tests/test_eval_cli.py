@@ -100,6 +100,7 @@ def test_eval_real_scans_matches_official(
     import panoptic_bench.evaluation.workers as workers
 
     monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real 2-process pool
+    monkeypatch.setattr(workers, "free_cpus", lambda: (8, "test: 8 free"))
     pred_root, scans = real_pred
     out1, out2 = tmp_path / "w1", tmp_path / "w2"
     assert main(eval_args(kitti_root, pred_root, out1, "--sequences", "00")) == 0
@@ -267,6 +268,7 @@ def test_eval_synthetic_split_workers(tmp_path: Path, monkeypatch) -> None:
     import panoptic_bench.evaluation.workers as workers
 
     monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real 2-process pool
+    monkeypatch.setattr(workers, "free_cpus", lambda: (8, "test: 8 free"))
     data, pred = make_tree(tmp_path, {"08": 4})
     assert main(eval_args(data, pred, tmp_path / "o", "--workers", "2")) == 0
     scores = json.loads((tmp_path / "o" / "scores.json").read_text())

@@ -120,7 +120,7 @@ def test_real_scans_against_themselves(kitti_root: Path) -> None:
 @pytest.mark.parametrize("dense_limit", [0, 1 << 21])
 def test_cell_counting_paths_agree(kitti_root: Path, monkeypatch, dense_limit: int) -> None:
     """Dense bincount, scatter (class a function of the id) and hash paths give the same stats."""
-    import panoptic_bench.metrics.panoptic as mod
+    import panoptic_bench.metrics.cells as mod
 
     monkeypatch.setattr(mod, "_DENSE_CELL_LIMIT", dense_limit)
     rng = np.random.default_rng(3)

@@ -106,6 +106,7 @@ def test_scores_and_by_range(gt_root, truth, tmp_path, monkeypatch):
     import panoptic_bench.evaluation.workers as workers
 
     monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real 2-process pool
+    monkeypatch.setattr(workers, "free_cpus", lambda: (8, "test: 8 free"))
     res = _write_predictions(tmp_path / "res", truth)
     out = tmp_path / "out"
     assert _eval(gt_root, res, out, "--by-range", "0,10,30,200", "--workers", "2") == 0

@@ -149,6 +149,7 @@ def test_workers_give_the_same_numbers(gt_root, truth, tmp_path, monkeypatch):
     from panoptic_bench.evaluation import workers
 
     monkeypatch.setattr(workers, "MIN_ITEMS_PER_WORKER", 1)  # a real pool for 5 sweeps
+    monkeypatch.setattr(workers, "free_cpus", lambda: (8, "test: 8 free"))
     res = _write(tmp_path / "res", _noisy(truth, np.random.default_rng(3)))
     got = []
     for w in ("1", "2"):

@@ -70,9 +70,11 @@ def run(args: argparse.Namespace) -> int:
     from panoptic_bench.errors import InputError
     from panoptic_bench.evaluation.nuscenes import evaluate_nuscenes, write_nuscenes_result
     from panoptic_bench.evaluation.output import percent_table
+    from panoptic_bench.evaluation.workers import retain_freed_memory
     from panoptic_bench.io import check_output_dir, output_tree
     from panoptic_bench.metrics.by_range import parse_edges
 
+    retain_freed_memory()
     edges = None
     if args.by_range is not None:
         try:

@@ -67,10 +67,12 @@ def _table(scores: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     """Handler of ``eval semantickitti-4d``."""
     from panoptic_bench.evaluation.semantickitti_4d import evaluate_semantickitti_4d
+    from panoptic_bench.evaluation.workers import retain_freed_memory
     from panoptic_bench.io import check_output_dir, output_tree
 
     inputs = (args.dataset, args.predictions)
     check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
+    retain_freed_memory()
     ev = evaluate_semantickitti_4d(
         args.dataset,
         args.predictions,

@@ -80,10 +80,12 @@ def run_eval(args: argparse.Namespace) -> int:
     """Handler of ``eval semantickitti``."""
     from panoptic_bench.evaluation.output import percent_table
     from panoptic_bench.evaluation.semantickitti import evaluate_semantickitti
+    from panoptic_bench.evaluation.workers import retain_freed_memory
     from panoptic_bench.io import check_output_dir, output_tree
 
     inputs = (args.dataset, args.predictions)
     check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
+    retain_freed_memory()
     ev = evaluate_semantickitti(
         args.dataset,
         args.predictions,

@@ -143,7 +143,8 @@ class SemanticKittiLabels:
 def get_labels() -> SemanticKittiLabels:
     """Load the packaged label facts once (``panoptic_bench/data/semantic-kitti.yaml``)."""
     text = (resources.files("panoptic_bench") / "data" / "semantic-kitti.yaml").read_text("utf-8")
-    return SemanticKittiLabels.from_dict(yaml.safe_load(text))
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml: ~10x faster at start-up
+    return SemanticKittiLabels.from_dict(yaml.load(text, Loader=loader))
 
 
 LABELS: SemanticKittiLabels = get_labels()

@@ -14,13 +14,11 @@ sweep, classes in 0..16) and reported as an :class:`~panoptic_bench.errors.Input
 from __future__ import annotations
 
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from panoptic_bench.datasets.nuscenes_reader import (
     POINT_DIMS,
@@ -31,7 +29,7 @@ from panoptic_bench.errors import InputError
 from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.io import ensure_output_dir, write_json
 from panoptic_bench.metrics.by_range import RangeStats, panoptic_stats_by_range, point_range
-from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats, preload
+from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats
 
 IGNORE = 0
 
@@ -273,29 +271,18 @@ def evaluate_nuscenes(
     chunks = [
         (jobs[i : i + chunk], classes, min_inst_points, edges) for i in range(0, len(jobs), chunk)
     ]
-    disable = None if progress is None else not progress
-    bar = tqdm(total=len(jobs), desc=f"nuScenes {eval_set}", unit="sweep", disable=disable)
+    bar = workers_module.progress_bar(len(jobs), f"nuScenes {eval_set}", "sweep", progress)
     n_workers = workers_module.pool_size(workers, len(jobs), len(chunks))
-    if n_workers == 1:
-        results = map(_score_chunk, chunks)
-        pool = None
-    else:
-        import multiprocessing as mp
-
-        preload()  # before the fork: workers share the kernel's imports
-        pool = ProcessPoolExecutor(n_workers, mp_context=mp.get_context("fork"))
-        results = pool.map(_score_chunk, chunks)
     try:
-        for per_sample in results:
-            for s, r in per_sample:
-                stats = stats + s
-                if ranges is not None:
-                    ranges = ranges + r
-            bar.update(len(per_sample))
+        with workers_module.pool_map(_score_chunk, chunks, n_workers) as results:
+            for per_sample in results:
+                for s, r in per_sample:
+                    stats = stats + s
+                    if ranges is not None:
+                        ranges = ranges + r
+                bar.update(len(per_sample))
     finally:
         bar.close()
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
     return NuScenesEvaluation(stats, ranges, classes, len(jobs))
 
 

@@ -12,12 +12,9 @@ Scenes are scored in worker processes and summed in scene order.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-from tqdm import tqdm
 
 from panoptic_bench.datasets.nuscenes_reader import NuScenesLidar
 from panoptic_bench.errors import InputError
@@ -30,7 +27,7 @@ from panoptic_bench.evaluation.nuscenes import (
     load_checked,
     open_scoring_inputs,
 )
-from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats, preload
+from panoptic_bench.metrics.panoptic import PanopticStats, panoptic_stats
 from panoptic_bench.metrics.tracking import SceneTracking, TrackingStats, tracking_frame
 
 __all__ = ["NuScenesTrackingEvaluation", "evaluate_nuscenes_tracking", "scene_jobs"]
@@ -182,32 +179,19 @@ def evaluate_nuscenes_tracking(
     scenes = scene_jobs(reader, eval_set, pred_dir)
     tasks = [(name, jobs, classes, min_inst_points) for name, jobs in scenes]
     n_samples = sum(len(j) for _, j in scenes)
-    disable = None if progress is None else not progress
-    bar = tqdm(total=n_samples, desc=f"nuScenes tracking {eval_set}", unit="sweep",
-               disable=disable)  # fmt: skip
-    pool = None
+    bar = workers_module.progress_bar(n_samples, f"nuScenes tracking {eval_set}", "sweep", progress)
     n_workers = workers_module.pool_size(workers, n_samples, len(tasks))
-    if n_workers > 1:
-        import multiprocessing as mp
-
-        preload()  # before the fork: workers share the kernel's imports
-
-        pool = ProcessPoolExecutor(n_workers, mp_context=mp.get_context("fork"))
-        results = pool.map(_score_scene, tasks)
-    else:
-        results = map(_score_scene, tasks)
     seg = PanopticStats.zeros(classes.num_classes, (IGNORE,))
     trk = None
     try:
-        for t, per_frame in results:  # scene order, frames in order: as the devkit sums
-            trk = t if trk is None else trk + t
-            for s in per_frame:
-                seg = seg + s
-            bar.update(len(per_frame))
+        with workers_module.pool_map(_score_scene, tasks, n_workers) as results:
+            for t, per_frame in results:  # scene order, frames in order: as the devkit sums
+                trk = t if trk is None else trk + t
+                for s in per_frame:
+                    seg = seg + s
+                bar.update(len(per_frame))
     finally:
         bar.close()
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
     if trk is None:
         raise InputError(f"eval set {eval_set!r} has no scenes", reader.table_root / "scene.json")
     return NuScenesTrackingEvaluation(

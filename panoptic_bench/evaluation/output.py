@@ -15,7 +15,6 @@ rq_things, sq_things``). ``per_class.csv``: ``class,kind,PQ,SQ,RQ,IoU`` (fractio
 
 from __future__ import annotations
 
-import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -94,6 +93,21 @@ def codalab_scores(summary: Mapping[str, float]) -> dict[str, float]:
     return {key: float(summary[ours]) for key, ours in CODALAB_KEYS.items()}
 
 
+def _text_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """Fixed-width text table: first column left-aligned, the others right-aligned."""
+    widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
+    lines = []
+    for r in (header, *rows):
+        cells = [str(r[0]).ljust(widths[0])]
+        cells += [str(c).rjust(w) for c, w in zip(r[1:], widths[1:])]
+        lines.append("  ".join(cells).rstrip())
+    return "\n".join(lines) + "\n"
+
+
+def _pct(value: float) -> str:
+    return f"{100 * value:6.2f}"
+
+
 def percent_table(scores: Mapping[str, Any]) -> str:
     """Human-readable tables in percent from a ``scores.json`` dict.
 
@@ -102,29 +116,19 @@ def percent_table(scores: Mapping[str, Any]) -> str:
     str
         Per-class PQ/SQ/RQ/IoU, the headline metrics and (if present) one row per range bin.
     """
-    import pandas as pd
-
-    out = io.StringIO()
-    classes = pd.DataFrame.from_dict(scores["classes"], orient="index")
-    classes.index.name = "class"
-    out.write((100 * classes).to_string(float_format=lambda v: f"{v:6.2f}") + "\n\n")
-    summary = pd.DataFrame([scores["all"]], index=["all"])
-    rows = scores.get("by_range") or []
-    if rows:
-        bins = pd.DataFrame(
-            [r["all"] for r in rows],
-            index=[f"{r['range'][0]:g}-{r['range'][1]:g} m" for r in rows],
-        )
-        summary = pd.concat([summary, bins])
-        points = [None] + [r.get("points") for r in rows]
-        summary.insert(0, "points", pd.array(points, dtype="Int64"))
-    pct = summary.copy()
-    metric_cols = [c for c in pct.columns if c != "points"]
-    pct[metric_cols] = 100 * pct[metric_cols]
-    out.write(
-        pct.to_string(float_format=lambda v: f"{v:6.2f}", na_rep="", index_names=False) + "\n"
-    )
-    return out.getvalue()
+    classes = scores["classes"]
+    cols = list(next(iter(classes.values()))) if classes else ["PQ", "SQ", "RQ", "IoU"]
+    rows = [[name, *(_pct(m[c]) for c in cols)] for name, m in classes.items()]
+    out = _text_table(["class", *cols], rows) + "\n"
+    bins = scores.get("by_range") or []
+    metrics = list(scores["all"])
+    head = ["", *(["points"] if bins else []), *metrics]
+    rows = [["all", *([""] if bins else []), *(_pct(scores["all"][m]) for m in metrics)]]
+    for b in bins:
+        name = f"{b['range'][0]:g}-{b['range'][1]:g} m"
+        points = "" if b.get("points") is None else str(b["points"])
+        rows.append([name, points, *(_pct(b["all"][m]) for m in metrics)])
+    return out + _text_table(head, rows)
 
 
 def write_scores(

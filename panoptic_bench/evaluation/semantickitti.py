@@ -13,18 +13,16 @@ result does not depend on ``workers``.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import sys
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.errors import InputError
+from panoptic_bench.evaluation import semantickitti_cells as cells
 from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.metrics.by_range import (
     RangeStats,
@@ -36,7 +34,6 @@ from panoptic_bench.metrics.panoptic import (
     PanopticResult,
     PanopticStats,
     panoptic_stats,
-    preload,
 )
 
 __all__ = [
@@ -208,16 +205,27 @@ def checked_train_ids(labels: np.ndarray, n_points: int, path: Path, what: str) 
     return sem
 
 
+def _codes(labels: np.ndarray, n_points: int, path: Path, what: str) -> tuple:
+    """:func:`semantickitti_cells.label_codes`, checked like :func:`check_label_ids`."""
+    if len(labels) != n_points:
+        check_label_ids(labels, n_points, path, what)
+    codes = cells.label_codes(labels)
+    if codes is None:
+        check_label_ids(labels, n_points, path, what)
+    return codes
+
+
 def _score(job: _Job) -> tuple[PanopticStats, RangeStats | None]:
     n = scan_point_count(job.ref.scan)
     gt = sk.read_labels(job.ref.label)
-    sg = checked_train_ids(gt, n, job.ref.label, "ground truth")
+    g = _codes(gt, n, job.ref.label, "ground truth")
     pred = sk.read_labels(job.pred)
-    sp = checked_train_ids(pred, n, job.pred, "prediction")
-    kw = {"num_classes": sk.LABELS.num_classes, "ignore": sk.LABELS.ignore_ids}
-    stats = panoptic_stats(sp, pred, sg, gt, min_points=job.min_points, **kw)
+    p = _codes(pred, n, job.pred, "prediction")
+    stats = cells.scan_stats(g, p, job.min_points)
     if job.edges is None:
         return stats, None
+    kw = {"num_classes": sk.LABELS.num_classes, "ignore": sk.LABELS.ignore_ids}
+    sp, sg = cells.train_ids(p[0]), cells.train_ids(g[0])
     ranges = point_range(sk.read_scan(job.ref.scan))
     return stats, panoptic_stats_by_range(
         sp, pred, sg, gt, ranges, job.edges, min_points=job.min_points, **kw
@@ -319,33 +327,17 @@ def evaluate_semantickitti(
     C, ignore = sk.LABELS.num_classes, sk.LABELS.ignore_ids
     stats = PanopticStats.zeros(C, ignore)
     ranges = None if edges is None else RangeStats.zeros(edges, C, ignore)
-    bar = tqdm(total=len(jobs), desc="SemanticKITTI", unit="scan", disable=_disable(progress))
-    pool = None
+    bar = workers_module.progress_bar(len(jobs), "SemanticKITTI", "scan", progress)
     n_workers = workers_module.pool_size(workers, len(jobs))
-    if n_workers > 1:
-        preload()  # before the fork: workers share the kernel's imports
-        pool = ProcessPoolExecutor(n_workers, mp_context=_context())
-        results = pool.map(_score, jobs, chunksize=max(1, len(jobs) // (8 * n_workers)))
-    else:
-        results = map(_score, jobs)
+    chunksize = max(1, len(jobs) // (8 * n_workers))
     try:
-        for s, r in results:  # scan order: identical sums for any number of workers
-            stats = stats + s
-            if ranges is not None:
-                ranges = ranges + r
-            bar.update()
+        with workers_module.pool_map(_score, jobs, n_workers, chunksize) as results:
+            for s, r in results:  # scan order: identical sums for any number of workers
+                stats = stats + s
+                if ranges is not None:
+                    ranges = ranges + r
+                bar.update()
     finally:
         bar.close()
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
     seqs = tuple(sorted({r.sequence for r in refs}))
     return SemanticKittiEvaluation(stats, ranges, len(jobs), seqs, min_points)
-
-
-def _disable(progress: bool | None) -> bool | None:
-    return None if progress is None else not progress
-
-
-def _context() -> mp.context.BaseContext:
-    methods = mp.get_all_start_methods()
-    return mp.get_context("fork" if "fork" in methods else "spawn")

@@ -19,19 +19,16 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.errors import InputError
 from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.evaluation.semantickitti import (
-    _context,
     checked_train_ids,
     require_predictions,
     scan_point_count,
@@ -260,24 +257,16 @@ def evaluate_semantickitti_4d(
             jobs.append(_Job(part, preds, min_points, mode, edges))
     total = _zeros(mode)
     bins = None if edges is None else [_zeros(mode) for _ in edges[1:]]
-    disable = None if progress is None else not progress
-    bar = tqdm(total=len(refs), desc="SemanticKITTI 4D", unit="scan", disable=disable)
-    pool = None
-    if n_workers > 1 and len(jobs) > 1:
-        pool = ProcessPoolExecutor(min(n_workers, len(jobs)), mp_context=_context())
-        results = pool.map(_score, jobs)
-    else:
-        results = map(_score, jobs)
+    bar = workers_module.progress_bar(len(refs), "SemanticKITTI 4D", "scan", progress)
     try:
-        for job, (s, b) in zip(jobs, results):  # job order: same sums for any worker count
-            total = total + s
-            if bins is not None:
-                bins = [x + y for x, y in zip(bins, b)]
-            bar.update(len(job.refs))
+        with workers_module.pool_map(_score, jobs, n_workers) as results:
+            for job, (s, b) in zip(jobs, results):  # job order: same sums for any worker count
+                total = total + s
+                if bins is not None:
+                    bins = [x + y for x, y in zip(bins, b)]
+                bar.update(len(job.refs))
     finally:
         bar.close()
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
     ranges = None
     if edges is not None:
         ranges = tuple((lo, hi, s) for lo, hi, s in zip(edges, edges[1:], bins))

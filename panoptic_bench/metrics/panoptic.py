@@ -28,16 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from panoptic_bench.metrics.cells import point_cells
+
 EPS = 1e-15
-_DENSE_CELL_LIMIT = 1 << 21  # count cells with a dense bincount below this many possible cells
 
-__all__ = ["EPS", "PanopticResult", "PanopticStats", "panoptic_stats", "preload"]
-
-
-def preload() -> None:
-    """Import what :func:`panoptic_stats` imports lazily (pandas); call it before forking
-    worker processes so that they share the import instead of paying it each."""
-    import pandas  # noqa: F401
+__all__ = ["EPS", "PanopticResult", "PanopticStats", "panoptic_stats", "stats_from_cells"]
 
 
 def _class_array(name: str, arr: np.ndarray, num_classes: int) -> np.ndarray:
@@ -47,7 +42,7 @@ def _class_array(name: str, arr: np.ndarray, num_classes: int) -> np.ndarray:
     arr = arr.ravel()
     if arr.size and (arr.min() < 0 or arr.max() >= num_classes):
         raise ValueError(f"{name} holds class ids outside [0, {num_classes})")
-    return arr.astype(np.int32, copy=False)
+    return arr
 
 
 def _inst_array(name: str, arr: np.ndarray) -> np.ndarray:
@@ -58,28 +53,6 @@ def _inst_array(name: str, arr: np.ndarray) -> np.ndarray:
     if arr.size and (arr.min() < 0 or arr.max() > 0xFFFFFFFF):
         raise ValueError(f"{name} holds instance ids outside [0, 2**32)")
     return arr
-
-
-def _count_cells(codes: np.ndarray, n_codes: int, sub: np.ndarray, n_sub: int):
-    """Distinct ``(code, sub)`` pairs as ``code * n_sub + sub`` (int64) and their counts.
-
-    Dense ``bincount`` when the cell space is small; when every code has a single ``sub`` (the
-    class is a function of the instance ids, as with full SemanticKITTI labels) a scatter suffices;
-    otherwise a second hash factorisation.
-    """
-    n_cells = n_codes * n_sub
-    if n_cells <= _DENSE_CELL_LIMIT:
-        counts = np.bincount(codes * n_sub + sub, minlength=n_cells)
-        cells = np.flatnonzero(counts)
-        return cells, counts[cells]
-    first = np.empty(n_codes, dtype=sub.dtype)
-    first[codes] = sub
-    if np.array_equal(first[codes], sub):
-        return np.arange(n_codes) * n_sub + first, np.bincount(codes, minlength=n_codes)
-    import pandas as pd  # lazy: importing pandas costs more than scoring a scan
-
-    cells_codes, cells = pd.factorize(codes * n_sub + sub, sort=False, use_na_sentinel=False)
-    return cells, np.bincount(cells_codes, minlength=len(cells))
 
 
 def _int_sum(index: np.ndarray, weights: np.ndarray, size: int) -> np.ndarray:
@@ -126,9 +99,10 @@ def panoptic_stats(
     Notes
     -----
     All per-point work is a handful of vectorised passes: the points are reduced to their
-    distinct *cells* ``(pred class, pred id, gt class, gt id)`` with one hash factorisation of the
-    id pair and one ``bincount``. Confusion matrix, segment sizes and intersections are then sums
-    over the (few hundred) cells, for all classes at once.
+    distinct *cells* ``(pred class, pred id, gt class, gt id)`` with their sizes
+    (:func:`panoptic_bench.metrics.cells.point_cells`). Confusion matrix, segment sizes and
+    intersections are then sums over the (few hundred) cells, for all classes at once
+    (:func:`stats_from_cells`).
     """
     n = np.size(sem_pred)
     if not (np.size(inst_pred) == np.size(sem_gt) == np.size(inst_gt) == n):
@@ -141,30 +115,59 @@ def panoptic_stats(
     sg = _class_array("sem_gt", sem_gt, C)
     ip = _inst_array("inst_pred", inst_pred)
     ig = _inst_array("inst_gt", inst_gt)
-    stats = PanopticStats.zeros(C, ignore)
     if n == 0:
-        return stats
+        return PanopticStats.zeros(C, ignore)
+    cells = point_cells(sp, ip, sg, ig, C)
+    return stats_from_cells(
+        cells.sem_pred,
+        cells.inst_pred,
+        cells.sem_gt,
+        cells.inst_gt,
+        cells.count,
+        num_classes=C,
+        ignore=ignore,
+        min_points=min_points,
+    )
+
+
+def stats_from_cells(
+    c_sp: np.ndarray,
+    c_ip: np.ndarray,
+    c_sg: np.ndarray,
+    c_ig: np.ndarray,
+    cnt: np.ndarray,
+    *,
+    num_classes: int,
+    ignore: Sequence[int] = (0,),
+    min_points: int = 30,
+) -> PanopticStats:
+    """The counts of :func:`panoptic_stats` from the distinct cells of the points.
+
+    Parameters
+    ----------
+    c_sp, c_sg : array of shape (k,), int64
+        Predicted and ground-truth class of each cell, in [0, num_classes).
+    c_ip, c_ig : array of shape (k,), int64
+        Predicted and ground-truth instance id of each cell, in [0, 2**32).
+    cnt : array of shape (k,), int64
+        Points per cell; each (class, id, class, id) tuple appears once, in any order.
+    num_classes, ignore, min_points
+        As in :func:`panoptic_stats`.
+
+    Returns
+    -------
+    PanopticStats
+    """
+    C = int(num_classes)
+    stats = PanopticStats.zeros(C, ignore)
     ignored = np.zeros(C, dtype=bool)
     ignored[list(stats.ignore)] = True
-
-    # 1. reduce the points to distinct cells (id pair, pred class, gt class) with their counts
-    id_pair = np.empty((n, 2), dtype=np.uint32)  # (gt id, pred id) viewed as one uint64 key
-    id_pair[:, 0] = ig
-    id_pair[:, 1] = ip
-    import pandas as pd
-
-    codes, pairs = pd.factorize(id_pair.view(np.uint64).ravel(), sort=False, use_na_sentinel=False)
     cc = C * C
-    cells, cnt = _count_cells(codes, len(pairs), sp * C + sg, cc)
-    pair = pairs[cells // cc]
-    c_sp, c_sg = np.divmod(cells % cc, C)
-    pair = pair.view(np.uint32).reshape(-1, 2).astype(np.int64)
-    c_ig, c_ip = pair[:, 0], pair[:, 1]
 
-    # 2. semantic confusion over all points (rows = prediction, cols = gt)
+    # 1. semantic confusion over all points (rows = prediction, cols = gt)
     stats.confusion += _int_sum(c_sp * C + c_sg, cnt, cc).reshape(C, C)
 
-    # 3. drop cells whose ground truth is ignored; segments = (class, id) of included classes
+    # 2. drop cells whose ground truth is ignored; segments = (class, id) of included classes
     keep = ~ignored[c_sg]
     c_sp, c_sg, c_ip, c_ig, cnt = c_sp[keep], c_sg[keep], c_ip[keep], c_ig[keep], cnt[keep]
     pvalid = ~ignored[c_sp]
@@ -172,7 +175,7 @@ def panoptic_stats(
     g_key, g_cnt, g_of = _group((c_sg << 32) | c_ig, cnt)
     p_cls, g_cls = p_key >> 32, g_key >> 32
 
-    # 4. a cell with equal classes is exactly one (pred segment, gt segment) intersection
+    # 3. a cell with equal classes is exactly one (pred segment, gt segment) intersection
     same = c_sp[pvalid] == c_sg[pvalid]
     pp, gg = p_of[same], g_of[pvalid][same]
     inter = cnt[pvalid][same]
