@@ -199,7 +199,7 @@ def checked_train_ids(labels: np.ndarray, n_points: int, path: Path, what: str) 
         raw = labels.view(np.uint16)[0::2]
     else:
         raw = labels & 0xFFFF
-    sem = _CHECKED_LUT[raw]
+    sem = np.take(_CHECKED_LUT, raw)  # faster than fancy indexing on a strided view
     if sem.max(initial=0) == _INVALID:
         check_label_ids(labels, n_points, path, what)
     return sem
