@@ -83,8 +83,9 @@ def test_progress_bar_disabled_off_terminal() -> None:
 HEAVY = ("torch", "pandas", "scipy", "sklearn", "numba", "matplotlib", "nuscenes", "plotly", "tqdm")
 
 
-def test_eval_semantickitti_imports_no_heavy_module(kitti_root, tmp_path) -> None:
-    """A whole ``eval semantickitti`` process never imports the heavy libraries."""
+@pytest.mark.parametrize("target", ["semantickitti", "semantickitti-4d"])
+def test_eval_imports_no_heavy_module(kitti_root, tmp_path, target) -> None:
+    """A whole ``eval semantickitti`` (or ``-4d``) process never imports the heavy libraries."""
     pred = tmp_path / "pred" / "sequences" / "00" / "predictions"
     pred.mkdir(parents=True)
     for label in sorted((kitti_root / "sequences" / "00" / "labels").iterdir()):
@@ -92,7 +93,7 @@ def test_eval_semantickitti_imports_no_heavy_module(kitti_root, tmp_path) -> Non
     code = (
         "import sys\n"
         "from panoptic_bench.cli import main\n"
-        f"status = main(['eval', 'semantickitti', '--dataset', {str(kitti_root)!r},"
+        f"status = main(['eval', {target!r}, '--dataset', {str(kitti_root)!r},"
         f" '--predictions', {str(tmp_path / 'pred')!r}, '--sequences', '00',"
         f" '--workers', '2', '--output', {str(tmp_path / 'out')!r}])\n"
         f"heavy = sorted({{m.split('.')[0] for m in sys.modules}} & set({HEAVY!r}))\n"
