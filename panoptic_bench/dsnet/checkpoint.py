@@ -52,6 +52,7 @@ __all__ = [
 SHIPPED: dict[str, str] = {
     "synthetic": "dsnet_synthetic.pt",
     "synthetic-backbone": "backbone_synthetic.pt",
+    "synthetic-realistic": "dsnet_synthetic_realistic.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
@@ -134,6 +135,7 @@ def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
         offset_hidden=m.offset_hidden,
         spconv1_rulebooks=is_official(cfg),
         offset_norm_first=is_official(cfg),
+        fast_inference=is_official(cfg),
     )
 
 

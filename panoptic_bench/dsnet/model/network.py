@@ -29,6 +29,7 @@ from panoptic_bench.dsnet.model.voxelize import (
     PointVoxelEncoder,
     VoxelBatch,
 )
+from panoptic_bench.dsnet.sparse.gemm import FAST_KEY
 
 
 @dataclass
@@ -86,6 +87,11 @@ class PanopticBackbone(nn.Module):
         (:mod:`panoptic_bench.dsnet.model.backbone`).
     offset_norm_first : bool
         Offset-head convs in the official order conv -> BatchNorm -> LeakyReLU.
+    fast_inference : bool
+        Without gradients, the sparse convs take the im2col GEMM path of
+        :mod:`panoptic_bench.dsnet.sparse.gemm` (same outputs up to float round-off; training
+        and calls with gradients are unchanged). True for the official network only, so the
+        nominal network's pinned outputs stay bit for bit.
 
     Both flags are False for the nominal network and True for the official one
     (``model.variant`` of the config, see :func:`panoptic_bench.dsnet.checkpoint.build_backbone`).
@@ -102,8 +108,10 @@ class PanopticBackbone(nn.Module):
         offset_hidden: int | None = None,
         spconv1_rulebooks: bool = False,
         offset_norm_first: bool = False,
+        fast_inference: bool = False,
     ) -> None:
         super().__init__()
+        self.fast_inference = bool(fast_inference)
         self.grid = CylinderGrid() if grid is None else grid
         self.num_classes = num_classes
         self.encoder = PointVoxelEncoder(
@@ -128,7 +136,10 @@ class PanopticBackbone(nn.Module):
                 f"batch voxelized on a {batch.spatial_shape} grid, model built for "
                 f"{self.grid.size}; collate with the model's grid"
             )
-        voxels = self.unet(self.encoder(batch))
+        x = self.encoder(batch)
+        if self.fast_inference:
+            x.cache[FAST_KEY] = True
+        voxels = self.unet(x)
         voxel_logits, sem_logits = self.semantic_head(voxels, batch.point_voxel)
         offsets, point_features = self.instance_head(voxels, batch.point_voxel, batch.xyz)
         return BackboneOutput(sem_logits, offsets, point_features, voxel_logits)

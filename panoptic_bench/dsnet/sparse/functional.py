@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import torch
 
+from panoptic_bench.dsnet.sparse import gemm
 from panoptic_bench.dsnet.sparse.kmap import (
     KernelMap,
     downsample_map,
@@ -89,8 +90,13 @@ def apply_kernel_map(
     weight: torch.Tensor,
     kmap: KernelMap,
     bias: torch.Tensor | None = None,
+    cache: dict | None = None,
 ) -> torch.Tensor:
     """Run a convolution given its kernel map.
+
+    Without gradients and when ``cache`` (the tensor's map cache) holds
+    :data:`~panoptic_bench.dsnet.sparse.gemm.FAST_KEY`, dense enough maps go through the
+    inference path of :mod:`panoptic_bench.dsnet.sparse.gemm` (same sums, another order).
 
     Parameters
     ----------
@@ -102,6 +108,8 @@ def apply_kernel_map(
         Pairs of the convolution (``len(kmap.splits) == n_offsets + 1``).
     bias : torch.Tensor, optional
         Array of shape (out_channels,).
+    cache : dict, optional
+        The input tensor's map cache (enables the inference path, keeps its neighbour tables).
 
     Returns
     -------
@@ -112,6 +120,10 @@ def apply_kernel_map(
         raise ValueError(f"weight has {weight.shape[0]} offsets, map {len(kmap.splits) - 1}")
     if features.shape[1] != weight.shape[1]:
         raise ValueError(f"features have {features.shape[1]} channels, weight {weight.shape[1]}")
+    n_off = weight.shape[0]
+    if gemm.fast_enabled(cache, features, weight) and gemm.use_table_path(kmap, n_off):
+        table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
+        return gemm.table_conv(features.contiguous(), weight.to(features.dtype), table, bias)
     out = _MapConv.apply(
         features.contiguous(),
         weight.to(features.dtype),
@@ -148,7 +160,7 @@ def submanifold_conv3d(
         Same sites and cache as ``x``, ``out_channels`` features.
     """
     kmap = submanifold_map(x, _as_triple(kernel_size, "kernel_size"))
-    return x.replace_features(apply_kernel_map(x.features, weight, kmap, bias))
+    return x.replace_features(apply_kernel_map(x.features, weight, kmap, bias, x.cache))
 
 
 def sparse_conv3d(
@@ -175,7 +187,7 @@ def sparse_conv3d(
         for v, n in ((kernel_size, "kernel_size"), (stride, "stride"), (padding, "padding"))
     )
     entry = downsample_map(x, ks, st, pad)
-    feats = apply_kernel_map(x.features, weight, entry.kmap, bias)
+    feats = apply_kernel_map(x.features, weight, entry.kmap, bias, x.cache)
     out_stride = tuple(a * b for a, b in zip(x.stride, st))
     return SparseTensor(feats, entry.out_coords, entry.out_shape, out_stride, x.cache)
 
@@ -199,7 +211,7 @@ def inverse_conv3d(
     )
     entry = find_downsample(x, ks, st, pad)
     kmap = entry.kmap.transposed(entry.in_coords.shape[0])
-    feats = apply_kernel_map(x.features, weight, kmap, bias)
+    feats = apply_kernel_map(x.features, weight, kmap, bias, x.cache)
     in_stride = tuple(a // b for a, b in zip(x.stride, st))
     return SparseTensor(feats, entry.in_coords, entry.in_shape, in_stride, x.cache)
 
