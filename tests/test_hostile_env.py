@@ -72,7 +72,7 @@ def _full_disk_commands(k, n, out):
                           "--output", out],
         "synth": ["synth", "semantickitti", "--out", out, "--sequences", "00:1"],
         "synth nuscenes": ["synth", "nuscenes", "--out", out, "--scenes", "2", "--samples", "1"],
-        "report": ["report", "--results", REPO / "reports/real-scans/runs/real-bfs", "--out", out],
+        "report": ["report", "--results", REPO / "reports/real-scans-3/runs/real-bfs", "--out", out],
         "checkpoint export": ["checkpoint", "export", ck, "--out", out.with_suffix(".pt")],
         "infer": ["infer", "--checkpoint", ck, "--data", k["data"], "--sequences", "08", "--out",
                   out, "--no-progress"],

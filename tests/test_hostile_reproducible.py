@@ -80,12 +80,12 @@ def test_equal_to_hdbscan_with_a_stable_sort(min_cluster_size, min_samples, eps,
 
 
 def test_committed_real_scans_hdbscan_rebuilds_exactly(shared_data, tmp_path):
-    """reports/real-scans/runs/real-hdbscan/scores.json, byte for byte, with AVX-512 off.
+    """reports/real-scans-3/runs/real-hdbscan/scores.json, byte for byte, with AVX-512 off.
 
     The pipeline of its run.json: DS-Net regression with the checkpoint named in the DS-Net
     run's notes (one torch thread), HDBSCAN (min cluster size 5, min 50 points, fusion), eval.
     """
-    committed = REPO / "reports/real-scans/runs"
+    committed = REPO / "reports/real-scans-3/runs"
     notes = json.loads((committed / "real-dsnet/run.json").read_text())["notes"]
     checkpoint = REPO / re.search(r"checkpoint (\S+\.pt)", notes).group(1)
     data = shared_data / "semantickitti"
