@@ -16,6 +16,7 @@ from panoptic_bench.dsnet.sparse import (
     SubMConv3d,
     apply_kernel_map,
     gemm,
+    pairs,
     submanifold_map,
 )
 
@@ -26,6 +27,13 @@ SHAPE = (9, 8, 6)
 def table_everywhere(monkeypatch):
     """Route every map with more than one offset to the table path, at any thread count."""
     monkeypatch.setattr(gemm, "MIN_DENSITY", 0.0)
+    monkeypatch.setattr(gemm, "MIN_THREADS", 1)
+
+
+@pytest.fixture
+def pairs_everywhere(monkeypatch):
+    """Route every map with more than one offset to the pair path, at any thread count."""
+    monkeypatch.setattr(gemm, "MIN_DENSITY", 1.01)
     monkeypatch.setattr(gemm, "MIN_THREADS", 1)
 
 
@@ -102,6 +110,31 @@ def test_strided_submanifold_inverse_equal_per_offset(table_everywhere):
     assert sum(k[0] == "table" for k in cache) == 3  # one table per map, built once
 
 
+def test_pair_path_equals_per_offset(pairs_everywhere):
+    torch.manual_seed(1)
+    layers = (
+        SparseConv3d(3, 6, 3, (2, 2, 2), 1),
+        SubMConv3d(6, 6, (3, 1, 3), bias=True),
+        SparseInverseConv3d(6, 2, 3, (2, 2, 2), 1, bias=True),
+    )
+    x = random_tensor(8, 3)
+    ref, _ = run(layers, x, fast=False)
+    got, cache = run(layers, x, fast=True)
+    torch.testing.assert_close(got, ref, atol=1e-5, rtol=1e-5)
+    assert sum(k[0] == "pair_order" for k in cache) == 3
+    assert not any(k[0] == "table" for k in cache)
+
+
+def test_output_order_groups_pairs_by_site():
+    x = random_tensor(9, 1)
+    kmap = submanifold_map(x, (3, 3, 1))
+    indptr, order = pairs.output_order(kmap)
+    out_idx = kmap.out_idx.numpy()
+    assert indptr[0] == 0 and indptr[-1] == len(out_idx) == len(order)
+    for o in range(kmap.n_out):
+        assert np.all(out_idx[order[indptr[o] : indptr[o + 1]]] == o)
+
+
 def test_gradients_and_one_thread_keep_the_per_offset_path(monkeypatch):
     x = random_tensor(6, 3)
     kmap = submanifold_map(x, (3, 3, 3))
@@ -117,6 +150,9 @@ def test_gradients_and_one_thread_keep_the_per_offset_path(monkeypatch):
     monkeypatch.setattr(torch, "get_num_threads", lambda: 2)
     assert gemm.use_table_path(kmap, 27)
     assert not gemm.use_table_path(kmap, 1)
+    monkeypatch.setattr(gemm, "MIN_DENSITY", 1.01)
+    assert gemm.use_pair_path(kmap, 27, torch.device("cpu"))
+    assert not gemm.use_pair_path(kmap, 27, torch.device("meta"))
 
 
 def test_training_step_uses_no_table(table_everywhere):

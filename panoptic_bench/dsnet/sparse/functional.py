@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from panoptic_bench.dsnet.sparse import gemm
+from panoptic_bench.dsnet.sparse import gemm, pairs
 from panoptic_bench.dsnet.sparse.kmap import (
     KernelMap,
     downsample_map,
@@ -96,7 +96,8 @@ def apply_kernel_map(
 
     Without gradients and when ``cache`` (the tensor's map cache) holds
     :data:`~panoptic_bench.dsnet.sparse.gemm.FAST_KEY`, dense enough maps go through the
-    inference path of :mod:`panoptic_bench.dsnet.sparse.gemm` (same sums, another order).
+    inference paths of :mod:`panoptic_bench.dsnet.sparse.gemm` and, for sparse maps,
+    :mod:`panoptic_bench.dsnet.sparse.pairs` (same sums, another order).
 
     Parameters
     ----------
@@ -121,9 +122,14 @@ def apply_kernel_map(
     if features.shape[1] != weight.shape[1]:
         raise ValueError(f"features have {features.shape[1]} channels, weight {weight.shape[1]}")
     n_off = weight.shape[0]
-    if gemm.fast_enabled(cache, features, weight) and gemm.use_table_path(kmap, n_off):
-        table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
-        return gemm.table_conv(features.contiguous(), weight.to(features.dtype), table, bias)
+    if gemm.fast_enabled(cache, features, weight):
+        if gemm.use_table_path(kmap, n_off):
+            table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
+            return gemm.table_conv(features.contiguous(), weight.to(features.dtype), table, bias)
+        if gemm.use_pair_path(kmap, n_off, features.device):
+            order = pairs.cached_order(cache, kmap)
+            w = weight.to(features.dtype).contiguous()
+            return pairs.pair_conv(features.contiguous(), w, kmap, order, bias)
     out = _MapConv.apply(
         features.contiguous(),
         weight.to(features.dtype),
