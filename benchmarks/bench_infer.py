@@ -30,8 +30,16 @@ Same-run references (no external baseline exists: the official code does not bui
 paper / CPU config cost, DS-Net / Backbone-with-Fusion cost, and the backbone with kernel-map
 reuse switched off (every submanifold layer rebuilds its own map and neighbour pairs) / ours.
 
-Usage: ``.venv/bin/python benchmarks/bench_infer.py [--quick | --paper-only] [--threads N]``;
-writes ``benchmarks/results/infer.md``. CUDA: not measured (no GPU was available).
+The official network runs its inference path (``PanopticBackbone(fast_inference=True)``:
+im2col GEMMs for dense maps, per-offset GEMMs with a parallel gather-sum for sparse ones, at two
+threads or more; :mod:`panoptic_bench.dsnet.sparse.gemm`); its column ends with a check of that
+path against the straightforward per-offset path (run at one thread) on the same scan and weights:
+raw outputs and ``Predictor.predict`` classes and instance ids.
+
+Usage: ``.venv/bin/python benchmarks/bench_infer.py [--quick | --paper-only] [--threads N]
+[--configs official,cpu,... --frames N]``; the official column alone:
+``--configs official --threads 2 --frames 1``. Writes ``benchmarks/results/infer.md``; rendering
+is in ``infer_report.py``. CUDA: not measured (no GPU was available).
 """
 
 from __future__ import annotations
@@ -39,11 +47,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from infer_report import render  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -57,19 +67,6 @@ NOMINAL_PAPER = {"variant": "nominal", "point_feature_dim": 256}
 KITTI = ROOT.parent / "shared" / "data" / "semantickitti"
 THREADS = 2  # default; --threads overrides (workers read PB_BENCH_THREADS)
 DEVICE = "cpu"  # --device overrides (workers read PB_BENCH_DEVICE)
-STAGES = [  # (key, label)
-    ("voxelize", "voxelize (cylindrical grid, 9-D point features)"),
-    ("backbone", "backbone: point MLP + U-Net + semantic & offset heads"),
-    ("ms12", "BwF: mean shift 1.2 (bin seeding) + small-instance filter"),
-    ("fusion", "BwF: consensus fusion"),
-    ("fps", "DS: FPS seeds"),
-    ("shift", "DS: dynamic shift (4 iterations × 3 bandwidths)"),
-    ("ms065", "DS: mean shift 0.65 on converged seeds"),
-    ("assign", "DS: nearest-seed assignment"),
-    ("ds_fusion", "DS: small-instance filter + consensus fusion"),
-    ("total_bwf", "**total Backbone with Fusion** (`Predictor.predict`)"),
-    ("total_ds", "**total DS-Net** (`Predictor.predict`)"),
-]
 
 
 def _rss_mib() -> float:
@@ -249,6 +246,8 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
             return consensus_fusion(sem, out_inst, cmap.num_classes)
 
         res["ds_fusion"], _ = _best(ds_fuse, n)
+        if getattr(net, "fast_inference", False):
+            res["check"] = fast_path_check(net, shift, cfg, cmap, sample, device)
         if no_cache_ref:  # paired with a cached run each time, so both see the same load
             original = spf.submanifold_map
 
@@ -270,6 +269,41 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
     return res
 
 
+def fast_path_check(net, shift, cfg, cmap, sample, device) -> dict:
+    """The inference GEMM path vs the straightforward per-offset path, same weights and scan.
+
+    Raw backbone outputs (max difference relative to the largest value) and the
+    ``Predictor.predict`` DS-Net classes and instance ids (real backbone outputs, no oracle);
+    the straightforward path runs at one thread (it is the faster one there).
+    """
+    import numpy as np
+    import torch
+
+    from panoptic_bench.dsnet.checkpoint import build_grid
+    from panoptic_bench.dsnet.inference.predictor import Predictor
+    from panoptic_bench.dsnet.model.forward import backbone_forward
+
+    threads = torch.get_num_threads()
+    outs, preds = {}, {}
+    for fast in (True, False):
+        net.fast_inference = fast
+        torch.set_num_threads(threads if fast else 1)
+        t0 = time.perf_counter()
+        outs[fast] = backbone_forward(net, [sample], build_grid(cfg), device)
+        elapsed = (time.perf_counter() - t0) * 1e3
+        torch.manual_seed(0)
+        preds[fast] = Predictor(net, shift, cfg, cmap, device).predict(sample)
+    net.fast_inference = True
+    torch.set_num_threads(threads)
+    res: dict = {"ref_backbone_ms": elapsed}
+    for key in ("sem_logits", "offsets", "point_features"):
+        a, b = getattr(outs[False], key), getattr(outs[True], key)
+        res[key] = float((a - b).abs().max()) / max(float(a.abs().max()), 1e-30)
+    res["sem_equal"] = float(np.mean(preds[True].sem == preds[False].sem))
+    res["inst_equal"] = float(np.mean(preds[True].inst == preds[False].inst))
+    return res
+
+
 def run_worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: bool) -> dict:
     n = str(THREADS)
     env = dict(os.environ, OMP_NUM_THREADS=n, NUMBA_NUM_THREADS=n, PB_BENCH_THREADS=n)
@@ -286,95 +320,12 @@ def run_worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref:
     return res
 
 
-def render(results: list[dict], load: tuple, repeats: dict, wall: float) -> str:
-    cols = [f"{r['config']} ({r.get('variant', 'nominal')}) / {r['scan']}" for r in results]
-    head = "| | " + " | ".join(cols) + " |\n|---|" + "---:|" * len(cols)
-    by = {(r["config"], r["scan"]): r for r in results}
-    lines = [
-        "## Inference cost per frame (`bench_infer.py`)",
-        "",
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, torch threads "
-        f"{THREADS}, device {DEVICE}, `torch.inference_mode()`, random-initialised weights; "
-        + (
-            "CUDA: not measured (no GPU was lent when these figures were taken); "
-            * (DEVICE == "cpu")
-        )
-        + "load average "
-        f"{load[0][0]:.2f} before / {load[1][0]:.2f} after (1 min; other work shares the "
-        "machine, absolute ms are noisy); one fresh process per column, a small-input "
-        f"backbone call first (start-up costs). End-to-end: best of {repeats['CPU']} frames "
-        f"per method (CPU config) / {repeats['paper']} (paper config); the backbone row is the "
-        "fastest backbone call inside those frames; the other stages best of 3 on the same "
-        f"inputs. Whole run {wall:.0f} s. "
-        "Scans: `sequences/00/velodyne/000000.bin` (real) and a synthetic HDL-64E sweep "
-        "(seed 0, sequence 08, frame 0). "
-        "The backbone runs in full; its logits and offsets are then replaced by the ground truth "
-        "and the simulated regression, so that clustering sees what a trained model would "
-        "give it (see the module docstring).",
-        "",
-    ]
-    busy = max(r["load_start"] for r in results)
-    if THREADS > 1 and busy + THREADS > (os.cpu_count() or 1) + 0.5:
-        lines += [
-            f"**Oversubscribed:** load {busy:.1f} + {THREADS} thread(s) on {os.cpu_count()} "
-            "cores. OpenMP parallel regions then wait for descheduled threads (tens of ms per "
-            "sparse-conv `index_add_`), so figures, ratios included, can be off by 10× and more; "
-            "re-run on an idle machine (or with `--threads 1`).",
-            "",
-        ]
-    lines += [
-        head,
-    ]
-    size = ["load_start", "load_end", "points", "voxels", "things", "seeds"]
-    size += ["instances_bwf", "instances_ds"]
-    for key in size:
-        cells = [f"{r[key]:.2f}" if isinstance(r[key], float) else str(r[key]) for r in results]
-        lines.append(f"| {key.replace('_', ' ')} | " + " | ".join(cells))
-    lines[-len(size) :] = [s + " |" for s in lines[-len(size) :]]
-    lines.append("| params (M) | " + " | ".join(f"{r['params_m']:.2f}" for r in results) + " |")
-    for key, label in STAGES:
-        cells = [f"{r[key]:.0f}" if r[key] >= 10 else f"{r[key]:.1f}" for r in results]
-        lines.append(f"| {label}, ms | " + " | ".join(cells) + " |")
-    lines += ["", "Peak RSS, MiB (fresh process per column; Δ = above the baseline after imports):"]
-    lines += ["", head]
-    rss = [
-        ("baseline after imports", lambda r: r["rss_import"]),
-        (
-            "Δ after loading the scan, building the networks",
-            lambda r: r["rss_model"] - r["rss_import"],
-        ),
-        ("Δ peak after a BwF frame", lambda r: r["rss_bwf"] - r["rss_import"]),
-        ("Δ peak after a DS-Net frame", lambda r: r["rss_ds"] - r["rss_import"]),
-        ("**absolute peak** (whole run)", lambda r: r["rss_peak"]),
-    ]
-    for label, fn in rss:
-        lines.append(f"| {label} | " + " | ".join(f"{fn(r):.0f}" for r in results) + " |")
-    lines += ["", "Ratios (same run, same scan):", "", "| ratio | scan | value |", "|---|---|---:|"]
-    for r in results:
-        ratio = r["total_ds"] / r["total_bwf"]
-        lines.append(f"| DS-Net / BwF total, {r['config']} config | {r['scan']} | {ratio:.2f}× |")
-    official, nominal = by.get(("paper", "real")), by.get(("paper-nominal", "real"))
-    if official and nominal:
-        for key, name in (("backbone", "backbone"), ("total_ds", "DS-Net total")):
-            ratio = nominal[key] / official[key]
-            lines.append(
-                f"| nominal / official paper network (effective kernels, VFE 256 vs 64), {name} "
-                f"| real | **{ratio:.2f}×** ({nominal[key]:.0f} vs {official[key]:.0f} ms) |"
-            )
-    for scan in ("real", "synthetic"):
-        cpu, paper = by.get(("CPU", scan)), by.get(("paper", scan))
-        if cpu and paper:
-            for key, name in (("backbone", "backbone"), ("total_ds", "DS-Net total")):
-                ratio = paper[key] / cpu[key]
-                lines.append(f"| paper / CPU config, {name} | {scan} | **{ratio:.1f}×** |")
-    for r in results:
-        if "ref_nocache" in r:
-            ratio = r["ref_nocache"] / r["ref_cached"]
-            lines.append(
-                f"| no kernel-map reuse / ours, backbone, {r['config']} config | {r['scan']} | "
-                f"**{ratio:.2f}×** ({r['ref_nocache']:.0f} vs {r['ref_cached']:.0f} ms) |"
-            )
-    return "\n".join(lines) + "\n"
+RUNS = {  # --configs name -> (config, scan, warm-up frames, kernel-map reference)
+    "cpu": ("CPU", "real", False, True),
+    "cpu-synthetic": ("CPU", "synthetic", False, False),
+    "official": ("paper", "real", False, False),
+    "paper-nominal": ("paper-nominal", "real", False, False),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -391,22 +342,38 @@ def main(argv: list[str] | None = None) -> int:
         "--paper-only", action="store_true", help="only the paper (official) config, real scan"
     )
     parser.add_argument(
+        "--configs",
+        default=None,
+        help=f"comma-separated columns among {', '.join(RUNS)} (default: all; --quick: cpu)",
+    )
+    parser.add_argument(
+        "--frames", type=int, default=None, help="end-to-end frames per method (best of N)"
+    )
+    parser.add_argument(
         "--threads", type=int, default=THREADS, help="torch / numba / OpenMP threads (default 2)"
     )
     args = parser.parse_args(argv)
     THREADS, DEVICE = args.threads, args.device
     repeats = {"CPU": 2, "paper": 1, "paper-nominal": 1}
-    # (config, scan, warm-up frames, kernel-map reference); the paper config forward costs
-    # 10-60 s per frame on 2 shared cores, so it runs once per method, on the real scan
-    runs = [("CPU", "real", False, True)]
+    if args.frames is not None:
+        if args.frames < 1:
+            parser.error("--frames must be >= 1")
+        repeats = dict.fromkeys(repeats, args.frames)
+    # the paper config forward costs seconds per frame on 2 shared cores, so by default it
+    # runs once per method, on the real scan
+    names = ["cpu"] if args.quick else list(RUNS)
     if args.paper_only:
-        runs = [("paper", "real", False, False)]
-    elif not args.quick:
-        runs += [("CPU", "synthetic", False, False), ("paper", "real", False, False)]
-        runs += [("paper-nominal", "real", False, False)]
+        names = ["official"]
+    if args.configs:
+        names = [c.strip() for c in args.configs.split(",") if c.strip()]
+        unknown = [c for c in names if c not in RUNS]
+        if unknown or not names:
+            parser.error(f"--configs: unknown {unknown}; choose among {', '.join(RUNS)}")
+    runs = [RUNS[c] for c in names]
     t0, load0 = time.perf_counter(), os.getloadavg()
     results = [run_worker(c, s, repeats[c], w, ref) for c, s, w, ref in runs]
-    text = render(results, (load0, os.getloadavg()), repeats, time.perf_counter() - t0)
+    load = (load0, os.getloadavg())
+    text = render(results, load, repeats, time.perf_counter() - t0, THREADS, DEVICE)
     print(text)
     from panoptic_bench.io import write_text
 
