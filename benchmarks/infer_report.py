@@ -51,7 +51,7 @@ def render(
         "",
     ]
     busy = max(r["load_start"] for r in results)
-    if threads > 1 and busy + threads > (os.cpu_count() or 1) + 0.5:
+    if threads > 1 and busy + threads > (os.cpu_count() or 1) + 1.0:
         lines += [
             f"**Oversubscribed:** load {busy:.1f} + {threads} thread(s) on {os.cpu_count()} "
             "cores. OpenMP parallel regions then wait for descheduled threads (tens of ms per "

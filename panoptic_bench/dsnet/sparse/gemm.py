@@ -24,12 +24,13 @@ from panoptic_bench.dsnet.sparse.kmap import KernelMap
 FAST_KEY = ("fast_inference",)
 """Key of a tensor cache that enables this path for every conv sharing the cache."""
 
-MIN_DENSITY = 0.75
+MIN_DENSITY = 0.5
 """Smallest pair density (pairs / (n_out * K)) routed to the table path; sparser maps go to
 :mod:`~panoptic_bench.dsnet.sparse.pairs`. At one thread the table path costs about ``1 /
 density`` times the per-offset path (measured per layer on the official network), at two its
 single large GEMM runs ~1.2x faster than per-offset-sized ones (``torch.mm`` 9335x4608x512 vs
-9335x512x512), so it pays off only on the densest maps (deep-level submanifold convs, 0.8)."""
+9335x512x512), so it pays off only on the denser maps. Whole official frame, 2 threads, idle machine: threshold
+0.75 -> 6.9 s backbone, 0.5 -> 6.0 s, 0.4 -> 5.7 / 6.0 s, 0.25 -> 6.7 s (benchmarks/bench_infer.py)."""
 
 MIN_THREADS = 2
 """Fewest torch threads for the table path: at one thread the per-offset path was faster on
