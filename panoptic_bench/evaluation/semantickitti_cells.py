@@ -24,7 +24,15 @@ import numpy as np
 from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.metrics.panoptic import PanopticStats, stats_from_cells
 
-__all__ = ["RAW_IDS", "RAW_TRAIN", "label_codes", "scan_cells", "scan_stats", "train_ids"]
+__all__ = [
+    "RAW_IDS",
+    "RAW_TRAIN",
+    "label_codes",
+    "label_halves",
+    "scan_cells",
+    "scan_stats",
+    "train_ids",
+]
 
 #: the defined raw semantic ids, sorted; a raw id's position here is its *raw index*
 RAW_IDS = np.flatnonzero(sk.LABELS.valid_raw).astype(np.int64)
@@ -41,7 +49,7 @@ _DIRECT_CODES = 1 << 16
 _DENSE_PAIRS = 1 << 16
 
 
-def _halves(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def label_halves(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) 16-bit halves of uint32 labels, as views where the byte order allows."""
     if sys.byteorder == "little" and labels.dtype == np.uint32:
         v = labels.view(np.uint16)
@@ -64,7 +72,7 @@ def label_codes(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         up to the largest one when they are few, else only those present). None when a label
         has an undefined raw id.
     """
-    lo, hi = _halves(labels)
+    lo, hi = label_halves(labels)
     raw = np.take(_RAW_INDEX, lo)
     if raw.size and raw.max() == _UNDEFINED:
         return None
