@@ -151,6 +151,10 @@ class AugmentConfig:
     Remission (off by default): ``remission_gamma`` and ``remission_gain`` ranges (per scan,
     ``r' = clip(gain * r ** gamma, 0, 1)``) and ``remission_zero_prob`` (per point, set to 0).
     Pose (off by default): ``pitch_std_deg`` / ``roll_std_deg`` of a random sensor tilt.
+    Scene mixing (off by default, :mod:`panoptic_bench.dsnet.data.mix`): with probability
+    ``mix_prob`` a training scan is mixed with another training scan (of another sequence where
+    there is one): an azimuth sector U[``mix_sector_deg``] wide is swapped, then
+    ``mix_paste_copies`` rotated copies of the partner's thing instances are pasted.
     """
 
     rotate: bool = True
@@ -163,6 +167,9 @@ class AugmentConfig:
     remission_zero_prob: float = 0.0
     pitch_std_deg: float = 0.0
     roll_std_deg: float = 0.0
+    mix_prob: float = 0.0
+    mix_sector_deg: tuple[float, float] = (90.0, 180.0)
+    mix_paste_copies: int = 0
 
     def validate(self) -> list[str]:
         lo, hi = self.scale_range
@@ -179,6 +186,13 @@ class AugmentConfig:
             problems.append("augment.remission_zero_prob must be in [0, 1)")
         if self.pitch_std_deg < 0 or self.roll_std_deg < 0 or min(self.translate_std) < 0:
             problems.append("augment.pitch_std_deg, roll_std_deg, translate_std must be >= 0")
+        if not 0.0 <= self.mix_prob <= 1.0:
+            problems.append("augment.mix_prob must be in [0, 1]")
+        lo, hi = self.mix_sector_deg
+        if not 0.0 <= lo <= hi <= 360.0:
+            problems.append(f"augment.mix_sector_deg must be 0 <= lo <= hi <= 360, got {[lo, hi]}")
+        if not 0 <= self.mix_paste_copies <= 16:
+            problems.append("augment.mix_paste_copies must be in 0..16")
         return problems
 
 

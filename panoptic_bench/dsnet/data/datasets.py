@@ -21,6 +21,7 @@ import numpy as np
 from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
 from panoptic_bench.dsnet.data.augment import augment_points, augment_remission, tilt_points
 from panoptic_bench.dsnet.data.density import thin
+from panoptic_bench.dsnet.data.mix import mix_pair
 from panoptic_bench.errors import InputError
 
 __all__ = [
@@ -288,7 +289,9 @@ class TrainingSet:
     augment : AugmentConfig or None
         None disables augmentation (validation).
     seed : int
-        Base seed; the stream for sample ``i`` in epoch ``e`` is ``(seed, e, i)``.
+        Base seed; the stream for sample ``i`` in epoch ``e`` is ``(seed, e, i)``; scene mixing
+    (``augment.mix_prob`` > 0) draws from its own stream ``(seed, e, i, 1)``, so a config
+    without mixing gives exactly the samples it gave before mixing existed.
     """
 
     def __init__(self, dataset: LidarDataset, augment: AugmentConfig | None, seed: int = 0):
@@ -304,10 +307,28 @@ class TrainingSet:
     def __len__(self) -> int:
         return len(self.dataset)
 
+    def partners(self, index: int) -> list[int]:
+        """Indices that scan ``index`` may be mixed with: other sequences first, else any other."""
+        keys = self.dataset.keys()
+        group = keys[index][0] if len(keys[index]) > 1 else None
+        other = [j for j, k in enumerate(keys) if j != index and (group is None or k[0] != group)]
+        return other or [j for j in range(len(keys)) if j != index]
+
+    def _mixed(self, sample: LidarSample, index: int) -> LidarSample:
+        aug = self.augment
+        rng = np.random.default_rng([self.seed, self.epoch, index, 1])
+        if len(self.dataset) < 2 or rng.random() >= aug.mix_prob:
+            return sample
+        options = self.partners(index)
+        partner = self.dataset.load(options[int(rng.integers(len(options)))])
+        return mix_pair(sample, partner, rng, aug.mix_sector_deg, aug.mix_paste_copies)
+
     def __getitem__(self, index: int) -> LidarSample:
         sample = self.dataset.load(index)
         if self.augment is not None:
             aug = self.augment
+            if aug.mix_prob > 0:
+                sample = self._mixed(sample, index)
             rng = np.random.default_rng([self.seed, self.epoch, index])
             sample, _ = thin(sample, aug.max_points, rng)
             sample.xyz = augment_points(
