@@ -188,6 +188,12 @@ def test_ds_stage_and_dynamic_shift_inference(world: Path, cfg: DSNetConfig, tmp
         a = np.load(tmp_path / "ds" / "sequences" / "08" / "centers" / name)
         b = np.load(tmp_path / "bfs" / "sequences" / "08" / "centers" / name)
         assert np.array_equal(a["offset"], b["offset"]) and np.array_equal(a["sem"], b["sem"])
+    # --tta-views 2: averaged over two views, still a complete, scorable tree
+    assert cli([*ds_infer, "--out", str(tmp_path / "tta"), "--tta-views", "2"]) == 0
+    _eval_scores(world, tmp_path / "tta", tmp_path / "tta_eval")
+    a = np.load(tmp_path / "ds" / "sequences" / "08" / "centers" / "000000.npz")
+    b = np.load(tmp_path / "tta" / "sequences" / "08" / "centers" / "000000.npz")
+    assert a["offset"].shape == b["offset"].shape and not np.array_equal(a["offset"], b["offset"])
 
 
 def test_ddp_gloo_two_processes(world: Path, cfg: DSNetConfig, tmp_path: Path):

@@ -51,6 +51,8 @@ CASES = [
     (INFER, "--threads", "-1"),
     (INFER, "--threads", "0"),
     (INFER, "--device", "banana"),
+    (INFER, "--tta-views", "0"),
+    (INFER, "--tta-views", "17"),
     # box-merge simulators
     (SIM_BOXES, "--miss-rate", "2"),
     (SIM_BOXES, "--position-sigma", "nan"),

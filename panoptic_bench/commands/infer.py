@@ -47,6 +47,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-fusion", action="store_true", help="skip consensus fusion")
     p.add_argument("--save-features", action="store_true", help="store features in the .npz")
     p.add_argument(
+        "--tta-views",
+        type=ca.int_range(1, 16),
+        help="test-time augmentation: average the backbone over K rotated / mirrored views "
+        "(default: the checkpoint config's inference.tta_views, 1 = off)",
+    )
+    p.add_argument(
         "--max-scans", type=ca.nonneg_int, default=0, help="only the first N scans (0 = all)"
     )
     p.add_argument("--device", type=ca.device, default="cpu", help="cpu or cuda")
@@ -84,6 +90,7 @@ def handler(args: argparse.Namespace) -> int:
             bandwidth=args.bandwidth,
             fusion=False if args.no_fusion else None,
             save_features=args.save_features,
+            tta_views=args.tta_views,
             max_samples=args.max_scans,
             device=args.device,
             progress=not args.no_progress,

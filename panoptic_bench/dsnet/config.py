@@ -238,6 +238,8 @@ class InferenceConfig:
 
     ``match_training_density`` predicts each scan at the training density (``augment.max_points``
     points, :mod:`panoptic_bench.dsnet.data.density`) and spreads the prediction to every point.
+    ``tta_views`` > 1 averages the backbone over that many rotated / mirrored views of each scan
+    (:mod:`panoptic_bench.dsnet.inference.tta`); 1 is the plain forward pass.
     """
 
     clusterer: Clusterer = Clusterer.MEANSHIFT
@@ -247,6 +249,7 @@ class InferenceConfig:
     min_points: int = 50
     fusion: bool = True
     match_training_density: bool = False
+    tta_views: int = 1
 
     def validate(self) -> list[str]:
         problems = []
@@ -255,6 +258,8 @@ class InferenceConfig:
                 problems.append(f"inference.{name} must be > 0")
         if self.min_points < 1:
             problems.append("inference.min_points must be >= 1")
+        if not 1 <= self.tta_views <= 16:
+            problems.append("inference.tta_views must be in 1..16")
         return problems
 
 

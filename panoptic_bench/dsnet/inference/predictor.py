@@ -11,6 +11,9 @@
    - otherwise a heuristic clusterer (``inference.clusterer``, default mean shift 1.2), which
      receives exactly the same regressed centres;
 3. consensus fusion (majority vote of the semantic class inside every instance), unless disabled.
+
+``inference.tta_views`` > 1 replaces step 1's single pass by the test-time augmentation of
+:mod:`panoptic_bench.dsnet.inference.tta` (averaged views of the scan).
    "Backbone with Fusion" = mean shift 1.2 + fusion.
 
 With ``model.variant: official`` the rules of the official DS-Net code apply instead
@@ -32,6 +35,7 @@ from panoptic_bench.dsnet.checkpoint import build_grid, is_official
 from panoptic_bench.dsnet.config import DSNetConfig
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, LidarSample
 from panoptic_bench.dsnet.inference.clustering import make_clusterer
+from panoptic_bench.dsnet.inference.tta import tta_forward
 from panoptic_bench.dsnet.model.forward import backbone_forward
 
 __all__ = ["Predictor", "ScanPrediction", "evaluate_dataset"]
@@ -124,7 +128,11 @@ class Predictor:
         from panoptic_bench.baselines.panoptic import assemble_panoptic
 
         self.backbone.eval()
-        out = backbone_forward(self.backbone, [sample], self.grid, self.device)
+        views = self.cfg.inference.tta_views
+        if views > 1:
+            out = tta_forward(self.backbone, sample, self.grid, self.device, views)
+        else:
+            out = backbone_forward(self.backbone, [sample], self.grid, self.device)
         logits = out.sem_logits
         if not self.official:  # the official code's argmax runs over every class
             logits = logits.clone()

@@ -72,6 +72,7 @@ def load_predictor(
     fusion: bool | None = None,
     device: str = "cpu",
     keep_features: bool = False,
+    tta_views: int | None = None,
 ) -> tuple[Predictor, Checkpoint]:
     """Build a :class:`Predictor` from a checkpoint.
 
@@ -82,11 +83,20 @@ def load_predictor(
         for a backbone checkpoint). ``bandwidth`` defaults to the config's (mean shift 1.2).
     fusion : bool, optional
         Consensus fusion on/off (default: config).
+    tta_views : int, optional
+        Test-time augmentation views (default: config ``inference.tta_views``).
     """
+    import dataclasses
+
     import torch
 
     ckpt = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
     cfg = ckpt.config
+    if tta_views is not None:
+        if not 1 <= tta_views <= 16:
+            raise InputError(f"tta_views must be in 1..16, got {tta_views}")
+        inf = dataclasses.replace(cfg.inference, tta_views=int(tta_views))
+        cfg = dataclasses.replace(cfg, inference=inf)
     backbone = build_backbone(cfg, ckpt.class_map.num_classes)
     load_weights(backbone, ckpt.backbone, ckpt.path, "backbone")
     backbone.to(device).eval()
@@ -174,6 +184,7 @@ def run_inference(
     bandwidth: float | None = None,
     fusion: bool | None = None,
     save_features: bool = False,
+    tta_views: int | None = None,
     max_samples: int = 0,
     overwrite: bool = True,
     device: str = "cpu",
@@ -197,6 +208,7 @@ def run_inference(
         fusion=fusion,
         device=device,
         keep_features=save_features,
+        tta_views=tta_views,
     )
     check_fits(ckpt, data_root)
     dataset = open_split(ckpt.config, data_root, split, max_samples)
