@@ -19,7 +19,7 @@ from panoptic_bench.datasets.synthetic.profile import (
     load_profile,
 )
 from panoptic_bench.datasets.synthetic.realism import aggregate, recover_rings, scan_measures
-from panoptic_bench.datasets.synthetic.sensor_real import tilt_matrix
+from panoptic_bench.datasets.synthetic.sensor_real import rough_field, tilt_matrix
 from panoptic_bench.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -132,6 +132,11 @@ def test_realistic_sensor_statistics_move_towards_real(realistic_frames):
     assert m["low_ring_ratio"] < 0.9 < mc["low_ring_ratio"]
     assert m["far_max"] <= 80.0 < mc["far_max"]
     assert m["clutter_pct"] > 0 and m["terrain_h"] > 0.05
+    # smooth ground (real road has no point-to-point jitter; iid roughness made road the only
+    # jittery surface, the cue the first realistic model used), grass rougher than road
+    assert m["road_jitter_mm"] < 5.0 < mc["road_jitter_mm"]
+    assert abs(m["road_jitter_mm"] - m["sidewalk_jitter_mm"]) < 1.5
+    assert m["terrain_jitter_mm"] > 1.5 * m["road_jitter_mm"]
     assert h["ring_points"].shape == (64,)
 
 
@@ -193,3 +198,20 @@ def test_stats_cli_real_vs_simulated_and_bad_input(kitti_root: Path, tmp_path: P
         err = capsys.readouterr().err
         assert msg in err and "Traceback" not in err
         assert not bad_out.exists()
+
+
+def test_rough_field_is_smooth_with_the_asked_std():
+    field = rough_field(np.random.default_rng(3), 0.03, 1.5)
+    assert field.shape == (48, 4)
+    np.testing.assert_array_equal(field, rough_field(np.random.default_rng(3), 0.03, 1.5))
+    kx, ky, ph, amp = field.T
+    xy = np.random.default_rng(4).uniform(-200, 200, (20000, 2))
+
+    def h(p):
+        return np.cos(np.multiply.outer(p[:, 0], kx) + np.multiply.outer(p[:, 1], ky) + ph) @ amp
+
+    assert 0.015 < h(xy).std() < 0.045  # one draw of 48 terms: std 0.03 within sampling error
+    step = h(xy + [0.05, 0.0]) - h(xy)  # 5 cm apart: almost the same height
+    assert np.abs(step).std() < 0.1 * h(xy).std()
+    far = h(xy + [10.0, 0.0]) - h(xy)  # 10 m apart: independent
+    assert far.std() > 1.2 * h(xy).std()

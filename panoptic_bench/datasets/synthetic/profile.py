@@ -54,7 +54,8 @@ class WorldProfile:
     - ``low_ring_keep``: keep probability of the lowest rings (ring 0 first);
     - ``ego_box``: ego-vehicle body that hides rays, ``(x_back, x_front, y_right, y_left,
       z_top)`` in the sensor frame (metres; empty = none);
-    - ``max_range``: cap on the range (0 = the model's);
+    - ``max_range``: cap on the range (0 = the model's); ``range_noise``: std (m) of the range
+      noise, clipped at 2.5 std (0 = the model's, 2 cm);
     - ``physical_remission``: remission = reflectivity x incidence^``rem_incidence_exp`` x
       exp(-range / ``rem_range_m``) x lognormal(``rem_spread``), recorded as exactly 0 below
       ``rem_zero_below``; each primitive's reflectivity is spread by lognormal
@@ -64,11 +65,17 @@ class WorldProfile:
 
     Ground and world:
 
-    - ``ground_rough``: iid vertical roughness of the ground (m, std); ``ground_wave``: amplitude
+    - ``ground_rough``: vertical roughness of the ground (m, std); ``ground_rough_corr``: its
+      correlation length (m): 0 draws every return's height independently (a point-to-point
+      jitter that real ground does not have: real road is the smoothest surface of a scan, see
+      the README's road-cue probes), > 0 makes it one smooth random height field per sequence
+      (a sum of random cosines, Gaussian covariance); ``ground_wave``: amplitude
       (m) of gentle undulations (30-80 m wavelengths); ``camber``: road cross-fall towards the
       kerbs (fraction);
     - ``kerb``: (low, high) kerb height range (m); ``terrain_raise``: (low, high) height of
-      green areas above the road (m, empty = flat);
+      green areas above the road (m, empty = flat); ``terrain_rough``: roughness (m, mean ray
+      penetration) of those raised green areas (real grass is about twice as rough, point to
+      point, as road and sidewalk);
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
       building, green, fence or plaza frontage per segment); ``back_row_prob``: probability of
@@ -89,6 +96,7 @@ class WorldProfile:
     low_ring_keep: tuple[float, ...] = ()
     ego_box: tuple[float, ...] = ()
     max_range: float = 0.0
+    range_noise: float = 0.0
     physical_remission: bool = False
     rem_incidence_exp: float = 0.5
     rem_range_m: float = 60.0
@@ -98,10 +106,12 @@ class WorldProfile:
     rem_dark_stuff: float = 0.0
     rem_zero_below: float = 0.0
     ground_rough: float = 0.0
+    ground_rough_corr: float = 0.0
     ground_wave: float = 0.0
     camber: float = 0.0
     kerb: tuple[float, float] = (0.14, 0.14)
     terrain_raise: tuple[float, ...] = ()
+    terrain_rough: float = 0.03
     lanes_p: tuple[float, float] = (0.45, 0.55)
     lane_width: tuple[float, float] = (3.3, 3.8)
     shoulder: tuple[float, float] = (0.5, 2.0)
@@ -142,6 +152,7 @@ class WorldProfile:
             "rem_zero_below": 0.0 <= self.rem_zero_below < 1.0,
             "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
+            "range_noise": 0.0 <= self.range_noise <= 0.5,
             "ped_spacing": self.ped_spacing > 0,
             "bike_spacing": self.bike_spacing > 0,
             "cyclist_spacing": self.cyclist_spacing > 0,
@@ -152,8 +163,10 @@ class WorldProfile:
             "sidewalk": self.sidewalk[0] >= 0.5,
             "kerb": 0.0 <= self.kerb[0] and self.kerb[1] <= 0.5,
             "ground_rough": 0.0 <= self.ground_rough <= 0.5,
+            "ground_rough_corr": 0.0 <= self.ground_rough_corr <= 50.0,
             "ground_wave": 0.0 <= self.ground_wave <= 2.0,
             "camber": 0.0 <= self.camber <= 0.1,
+            "terrain_rough": 0.0 <= self.terrain_rough <= 0.5,
         }
         problems += [
             f"{k} = {getattr(self, k)!r} is out of range" for k, ok in checks.items() if not ok
@@ -220,9 +233,9 @@ def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
 CLASSIC = WorldProfile()
 _SENSOR_KEYS = (
     "height_shift", "pitch_deg", "roll_deg", "real_elevations", "low_ring_keep", "ego_box",
-    "max_range", "physical_remission", "rem_incidence_exp", "rem_range_m", "rem_spread",
-    "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below", "ground_rough", "ground_wave",
-    "camber",
+    "max_range", "range_noise", "physical_remission", "rem_incidence_exp", "rem_range_m",
+    "rem_spread", "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below",
+    "ground_rough", "ground_rough_corr", "ground_wave", "camber",
 )  # fmt: skip
 
 REALISTIC = WorldProfile(
@@ -234,6 +247,7 @@ REALISTIC = WorldProfile(
     low_ring_keep=(0.91, 0.96, 0.93, 0.95, 0.96, 0.98, 0.99),
     ego_box=(-1.4, 1.0, -0.75, 0.9, -0.5),
     max_range=80.0,
+    range_noise=0.01,
     physical_remission=True,
     rem_incidence_exp=0.1,
     rem_range_m=50.0,
@@ -243,10 +257,12 @@ REALISTIC = WorldProfile(
     rem_dark_stuff=0.06,
     rem_zero_below=0.06,
     ground_rough=0.03,
+    ground_rough_corr=1.5,
     ground_wave=0.08,
     camber=0.02,
     kerb=(0.04, 0.14),
     terrain_raise=(0.1, 0.45),
+    terrain_rough=0.06,
     lanes_p=(0.7, 0.3),
     lane_width=(3.0, 3.5),
     shoulder=(0.2, 1.0),

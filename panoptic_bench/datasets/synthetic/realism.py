@@ -14,7 +14,12 @@ Conventions (the same estimator runs on real and synthetic scans, so only the co
   without residuals above 0.15 m; ``c`` is the road height under the sensor, ``atan(a)`` the
   ground slope along x (reported as sensor pitch, positive when the road rises ahead, i.e. the
   sensor looks down) and ``atan(b)`` along y (sensor roll, positive when the road rises to the
-  left); roughness is the standard deviation of the refit residuals;
+  left); roughness is the standard deviation of the refit residuals (it includes camber and
+  undulation, so it says nothing about point-to-point smoothness);
+- **jitter** (point-to-point roughness) of road, sidewalk and terrain: the second difference of
+  z along the ring, ``z[i] - (z[i-1] + z[i+1]) / 2``, over consecutive triples of the class
+  3-15 m away whose neighbours lie within 0.5 m, as a robust std (1.4826 x median absolute
+  deviation, mm): what a voxel sees of a surface's local texture;
 - heights of sidewalk and terrain are median residuals of their points 3-20 m away from that
   plane; the ego hole is the minimum horizontal range of ground points (road, parking, sidewalk, other-ground,
   terrain) in each of 8 azimuth sectors (45 degrees,
@@ -43,6 +48,9 @@ MEASURES: dict[str, tuple[str, str]] = {
     "pitch_deg": ("pose: sensor pitch from the road plane (deg)", "median"),
     "roll_deg": ("pose: sensor roll from the road plane (deg)", "median"),
     "road_rough_cm": ("ground: road roughness, residual std (cm)", "median"),
+    "road_jitter_mm": ("ground: road jitter, 2nd z difference along the ring (mm)", "median"),
+    "sidewalk_jitter_mm": ("ground: sidewalk jitter (mm)", "median"),
+    "terrain_jitter_mm": ("ground: terrain jitter (mm)", "median"),
     "below_185_pct": ("ground: % of points below z = -1.85 m", "mean"),
     "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
     "terrain_h": ("ground: terrain height above the road (m)", "median"),
@@ -123,6 +131,18 @@ def _plane(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray | None:
     return coef
 
 
+def _jitter(x, y, z, r, mask: np.ndarray) -> float:
+    """Robust std (mm) of the second z difference over consecutive in-class triples, 3-15 m."""
+    if mask.size < 3:
+        return float("nan")
+    step = np.hypot(np.diff(x), np.diff(y)) < 0.5
+    ok = mask[1:-1] & mask[:-2] & mask[2:] & step[:-1] & step[1:] & (r[1:-1] >= 3) & (r[1:-1] < 15)
+    if ok.sum() < 50:
+        return float("nan")
+    d = (z[1:-1] - (z[:-2] + z[2:]) / 2)[ok]
+    return 1000.0 * 1.4826 * float(np.median(np.abs(d - np.median(d))))
+
+
 def _median(v: np.ndarray) -> float:
     return float(np.median(v)) if v.size else float("nan")
 
@@ -199,6 +219,8 @@ def scan_measures(
         near = (r >= 3) & (r <= 20)
         m["sidewalk_h"] = _median(resid[near & (raw == SIDEWALK)])
         m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
+    for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
+        m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
     ring = recover_rings(points[:, :3])
     ring_points = np.bincount(ring, minlength=N_RINGS)[:N_RINGS]
     elev = np.degrees(np.arctan2(z, r))

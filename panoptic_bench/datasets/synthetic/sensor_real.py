@@ -1,8 +1,9 @@
 """The realistic sensor model of a :class:`~.profile.WorldProfile` (``physical_remission`` etc.).
 
 One :class:`SensorState` per sequence (drawn from ``default_rng([seed, key, 2])``): sensor height,
-pitch and roll, the gentle undulation of the ground, and a gain and dark flag per primitive (the
-material of each surface, constant along the sequence). :func:`sweep_realistic` then casts the
+pitch and roll, the gentle undulation of the ground, a gain and dark flag per primitive (the
+material of each surface, constant along the sequence) and, with ``ground_rough_corr > 0``, the
+smooth roughness field of the ground (drawn last, so the other draws do not depend on it). :func:`sweep_realistic` then casts the
 tilted beam grid (real HDL-64E elevations when asked), hides rays that hit the ego vehicle,
 moves ground returns onto the rough, cambered, undulating ground, records remission with range
 and incidence falloff (quantised to 0.01, exactly 0 below the detection floor: far road, dark
@@ -20,7 +21,7 @@ from panoptic_bench.datasets.synthetic.raycast import GROUND, cast, ray_directio
 from panoptic_bench.datasets.synthetic.scene import Scene
 from panoptic_bench.datasets.synthetic.shapes import normals
 
-__all__ = ["SensorState", "sensor_state", "sweep_realistic", "tilt_matrix"]
+__all__ = ["SensorState", "rough_field", "sensor_state", "sweep_realistic", "tilt_matrix"]
 
 #: Raw ids whose primitives are vehicle bodies / glass (dark paint is common).
 _VEHICLES = (10, 13, 15, 18, 20, 252, 257, 258, 259)
@@ -40,12 +41,16 @@ class SensorState:
         Ground undulation terms ``(amplitude m, wavenumber rad/m, phase)`` along x.
     gain : ndarray of shape (M,), float32
         Reflectivity factor of every primitive of the scene (static first, then things).
+    rough : ndarray of shape (K, 4), float64, or None
+        Smooth ground roughness field ``sum_k a_k cos(kx_k x + ky_k y + phase_k)``, one row
+        ``(kx rad/m, ky rad/m, phase, a m)`` per term (world frame); None: iid roughness.
     """
 
     height: float
     rotation: np.ndarray
     wave: np.ndarray
     gain: np.ndarray
+    rough: np.ndarray | None = None
 
 
 def tilt_matrix(pitch_deg: float, roll_deg: float) -> np.ndarray:
@@ -76,7 +81,32 @@ def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) 
     vehicle = np.isin(labels, _VEHICLES)
     p_dark = np.where(vehicle, profile.rem_dark_prob, profile.rem_dark_stuff)
     gain = np.where(rng.random(labels.size) < p_dark, 0.1 * gain, gain)
-    return SensorState(float(h), tilt_matrix(pitch, roll), wave, gain.astype(np.float32))
+    rough = None
+    if profile.ground_rough and profile.ground_rough_corr > 0:
+        rough = rough_field(rng, profile.ground_rough, profile.ground_rough_corr)
+    return SensorState(float(h), tilt_matrix(pitch, roll), wave, gain.astype(np.float32), rough)
+
+
+#: Number of random cosines of a smooth roughness field.
+ROUGH_TERMS = 48
+
+
+def rough_field(rng: np.random.Generator, std: float, corr: float) -> np.ndarray:
+    """Draw a smooth random height field (random Fourier features of a Gaussian covariance).
+
+    Wave vectors ~ N(0, I / corr^2), phases ~ U[0, 2 pi), equal amplitudes: the field has
+    standard deviation ``std`` and covariance ``std^2 exp(-d^2 / (2 corr^2))`` between points
+    ``d`` apart (in expectation over draws).
+
+    Returns
+    -------
+    ndarray of shape (ROUGH_TERMS, 4), float64
+        Rows ``(kx rad/m, ky rad/m, phase, amplitude m)``.
+    """
+    k = rng.normal(0.0, 1.0 / corr, (ROUGH_TERMS, 2))
+    phase = rng.uniform(0.0, 2 * np.pi, ROUGH_TERMS)
+    amp = np.full(ROUGH_TERMS, std * np.sqrt(2.0 / ROUGH_TERMS))
+    return np.column_stack([k, phase, amp])
 
 
 def _ego_hidden(dirs: np.ndarray, box: tuple[float, ...]) -> np.ndarray:
@@ -95,7 +125,10 @@ def _ground_height(scene: Scene, state: SensorState, profile: WorldProfile, wx, 
         h += amp * np.sin(k * wx + ph)
     road_half = scene.plan.road_half
     h -= profile.camber * np.minimum(np.abs(wy), road_half)
-    if profile.ground_rough:
+    if state.rough is not None:
+        kx, ky, ph, amp = state.rough.T
+        h += np.cos(np.multiply.outer(wx, kx) + np.multiply.outer(wy, ky) + ph) @ amp
+    elif profile.ground_rough:
         h += rng.normal(0.0, profile.ground_rough, n)
     return h
 
@@ -159,14 +192,11 @@ def sweep_realistic(
     instance[obj] = np.where(owner >= 0, owner + 1, 0).astype(np.uint32)
 
     cos_inc = np.clip(np.abs(np.einsum("ij,ij->i", nrm, d)), 1e-4, 1.0)
+    noise = profile.range_noise or model.range_noise
     t = (
         t
         + rough * rng.exponential(1.0, idx.size)
-        + np.clip(
-            rng.normal(0.0, model.range_noise, idx.size),
-            -2.5 * model.range_noise,
-            2.5 * model.range_noise,
-        )
+        + np.clip(rng.normal(0.0, noise, idx.size), -2.5 * noise, 2.5 * noise)
     )
     fall_r = 1.0 / (1.0 + (t / profile.rem_range_m) ** 4)
     fall_i = cos_inc**profile.rem_incidence_exp / (1.0 + (0.06 / cos_inc) ** 8)

@@ -165,7 +165,17 @@ def _segment(
         if prof.terrain_raise:
             z = float(rng.uniform(*prof.terrain_raise))
             ys = sorted((side * y_front, side * back))
-            b.box(x0, x1, ys[0], ys[1], 0.0, z, TERRAIN, rng.uniform(0.3, 0.5), rough=0.03)
+            b.box(
+                x0,
+                x1,
+                ys[0],
+                ys[1],
+                0.0,
+                z,
+                TERRAIN,
+                rng.uniform(0.3, 0.5),
+                rough=prof.terrain_rough,
+            )
         if kind == "fence":
             fh = rng.uniform(1.0, 2.0)
             yf = side * (y_front + 0.3)
