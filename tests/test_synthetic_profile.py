@@ -137,6 +137,8 @@ def test_realistic_sensor_statistics_move_towards_real(realistic_frames):
     assert m["road_jitter_mm"] < 5.0 < mc["road_jitter_mm"]
     assert abs(m["road_jitter_mm"] - m["sidewalk_jitter_mm"]) < 1.5
     assert m["terrain_jitter_mm"] > 1.5 * m["road_jitter_mm"]
+    # dark asphalt patches: road is a large share of the dark returns, as in the real scans (29 %)
+    assert m["rem_dark_road_pct"] > 15.0
     assert h["ring_points"].shape == (64,)
 
 

@@ -75,7 +75,8 @@ class WorldProfile:
     - ``kerb``: (low, high) kerb height range (m); ``terrain_raise``: (low, high) height of
       green areas above the road (m, empty = flat); ``terrain_rough``: roughness (m, mean ray
       penetration) of those raised green areas (real grass is about twice as rough, point to
-      point, as road and sidewalk);
+      point, as road and sidewalk); ``road_dark``: fraction of the road and parking area covered by
+      dark patches (repairs, wet asphalt, tyre marks; reflectivity 0.04-0.2);
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
       building, green, fence or plaza frontage per segment); ``back_row_prob``: probability of
@@ -112,6 +113,7 @@ class WorldProfile:
     kerb: tuple[float, float] = (0.14, 0.14)
     terrain_raise: tuple[float, ...] = ()
     terrain_rough: float = 0.03
+    road_dark: float = 0.0
     lanes_p: tuple[float, float] = (0.45, 0.55)
     lane_width: tuple[float, float] = (3.3, 3.8)
     shoulder: tuple[float, float] = (0.5, 2.0)
@@ -167,6 +169,7 @@ class WorldProfile:
             "ground_wave": 0.0 <= self.ground_wave <= 2.0,
             "camber": 0.0 <= self.camber <= 0.1,
             "terrain_rough": 0.0 <= self.terrain_rough <= 0.5,
+            "road_dark": 0.0 <= self.road_dark <= 1.0,
         }
         problems += [
             f"{k} = {getattr(self, k)!r} is out of range" for k, ok in checks.items() if not ok
@@ -263,6 +266,7 @@ REALISTIC = WorldProfile(
     kerb=(0.04, 0.14),
     terrain_raise=(0.1, 0.45),
     terrain_rough=0.06,
+    road_dark=0.15,
     lanes_p=(0.7, 0.3),
     lane_width=(3.0, 3.5),
     shoulder=(0.2, 1.0),
