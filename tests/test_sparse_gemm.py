@@ -18,6 +18,7 @@ from panoptic_bench.dsnet.sparse import (
     gemm,
     pairs,
     submanifold_map,
+    tiles,
 )
 
 SHAPE = (9, 8, 6)
@@ -28,6 +29,7 @@ def table_everywhere(monkeypatch):
     """Route every map with more than one offset to the table path, at any thread count."""
     monkeypatch.setattr(gemm, "MIN_DENSITY", 0.0)
     monkeypatch.setattr(gemm, "MIN_THREADS", 1)
+    monkeypatch.setattr(tiles, "use_tile_path", lambda n_offsets, device: False)
 
 
 @pytest.fixture
@@ -35,6 +37,7 @@ def pairs_everywhere(monkeypatch):
     """Route every map with more than one offset to the pair path, at any thread count."""
     monkeypatch.setattr(gemm, "MIN_DENSITY", 1.01)
     monkeypatch.setattr(gemm, "MIN_THREADS", 1)
+    monkeypatch.setattr(tiles, "use_tile_path", lambda n_offsets, device: False)
 
 
 def random_tensor(seed: int, channels: int, occupancy: float = 0.35) -> SparseTensor:

@@ -24,7 +24,13 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from panoptic_bench.dsnet.sparse import SparseConv3d, SparseInverseConv3d, SparseTensor, SubMConv3d
+from panoptic_bench.dsnet.sparse import (
+    SparseConv3d,
+    SparseInverseConv3d,
+    SparseTensor,
+    SubMConv3d,
+    fused,
+)
 
 K_1x3x3 = (1, 3, 3)
 K_3x1x3 = (3, 1, 3)
@@ -56,15 +62,26 @@ class ConvActNorm(nn.Module):
 
     def forward(self, x: SparseTensor) -> SparseTensor:
         y = self.conv(x)
-        return y.replace_features(self.norm(self.act(y.features)))
+        return y.replace_features(self.post(y.features, fused.inference_path(y, self.norm)))
+
+    def post(self, features: torch.Tensor, in_place: bool = False) -> torch.Tensor:
+        """LeakyReLU then BatchNorm of the conv output (n_sites, out_channels).
+
+        ``in_place``: overwrite ``features`` (the inference path, :mod:`..sparse.fused`).
+        """
+        if in_place:
+            return fused.act_norm_(features, self.act, [self.norm])
+        return self.norm(self.act(features))
 
 
 class ConvNormAct(ConvActNorm):
     """Submanifold conv -> BatchNorm -> LeakyReLU (the official offset head's order)."""
 
-    def forward(self, x: SparseTensor) -> SparseTensor:
-        y = self.conv(x)
-        return y.replace_features(self.act(self.norm(y.features)))
+    def post(self, features: torch.Tensor, in_place: bool = False) -> torch.Tensor:
+        """BatchNorm then LeakyReLU (in place on the inference path)."""
+        if in_place:
+            return fused.norm_act_(features, self.norm, self.act)
+        return self.act(self.norm(features))
 
 
 class ResContextBlock(nn.Module):
@@ -88,7 +105,19 @@ class ResContextBlock(nn.Module):
         )
 
     def forward(self, x: SparseTensor) -> SparseTensor:
-        a, b = self.branch_a(x), self.branch_b(x)
+        a0, b0 = self.branch_a[0], self.branch_b[0]
+        if (
+            fused.inference_path(x, a0.norm, b0.norm)
+            and fused.can_merge([a0.conv, b0.conv])
+            and a0.act.negative_slope == b0.act.negative_slope
+        ):  # both first convs read x through the same map: one conv, twice as wide
+            h = fused.merged_conv(x, [a0.conv, b0.conv])
+            f = fused.act_norm_(h.features, a0.act, [a0.norm, b0.norm])
+            c = a0.conv.out_channels
+            a = self.branch_a[1](h.replace_features(f[:, :c]))
+            b = self.branch_b[1](h.replace_features(f[:, c:]))
+        else:
+            a, b = self.branch_a(x), self.branch_b(x)
         return b.replace_features(a.features + b.features)
 
 
@@ -155,6 +184,13 @@ class ReconBlock(nn.Module):
         self.norms = nn.ModuleList(nn.BatchNorm1d(channels) for _ in kernels)
 
     def forward(self, x: SparseTensor) -> SparseTensor:
+        convs = list(self.convs)
+        if fused.inference_path(x, *self.norms) and fused.can_merge(convs):
+            h = fused.merged_conv(x, convs).features  # the three gates side by side
+            torch.sigmoid_(fused.affine_(h, *fused.norms_scale_shift(list(self.norms))))
+            c = convs[0].out_channels
+            gate = h[:, :c] + h[:, c : 2 * c] + h[:, 2 * c :]
+            return x.replace_features(gate.mul_(x.features))
         gate = sum(
             torch.sigmoid(norm(conv(x).features)) for conv, norm in zip(self.convs, self.norms)
         )

@@ -74,6 +74,26 @@ class InstanceHead(nn.Module):
         self, x: SparseTensor, point_voxel: torch.Tensor, xyz: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(offsets (n_points, 3), point_features (n_points, feature_dim))``."""
-        point_features = self.convs(x).features.index_select(0, point_voxel)
+        return self.from_voxels(self.convs(x).features, point_voxel, xyz)
+
+    def from_first_conv(
+        self, first: SparseTensor, point_voxel: torch.Tensor, xyz: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`forward` given the raw output of ``convs[0].conv`` (inference path).
+
+        ``first`` holds the first conv's output features (n_voxels, in_channels), overwritten:
+        its BatchNorm and activation run in place.
+        """
+        layer = self.convs[0]
+        h = first.replace_features(layer.post(first.features, in_place=True))
+        for layer in self.convs[1:]:
+            h = layer(h)
+        return self.from_voxels(h.features, point_voxel, xyz)
+
+    def from_voxels(
+        self, voxel_features: torch.Tensor, point_voxel: torch.Tensor, xyz: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Point MLP on each point's voxel features (n_voxels, feature_dim); see :meth:`forward`."""
+        point_features = voxel_features.index_select(0, point_voxel)
         offsets = self.mlp(torch.cat([point_features, xyz.to(point_features.dtype)], dim=1))
         return offsets, point_features

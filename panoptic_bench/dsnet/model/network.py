@@ -29,6 +29,7 @@ from panoptic_bench.dsnet.model.voxelize import (
     PointVoxelEncoder,
     VoxelBatch,
 )
+from panoptic_bench.dsnet.sparse import fused
 from panoptic_bench.dsnet.sparse.gemm import FAST_KEY
 
 
@@ -140,6 +141,17 @@ class PanopticBackbone(nn.Module):
         if self.fast_inference:
             x.cache[FAST_KEY] = True
         voxels = self.unet(x)
+        logits, first = self.semantic_head.logits, self.instance_head.convs[0]
+        if fused.inference_path(voxels, first.norm) and fused.can_merge([logits, first.conv]):
+            # both heads' first convs read the U-Net output through the same map: one conv
+            h = fused.merged_conv(voxels, [logits, first.conv])
+            voxel_logits = h.features[:, : self.num_classes].contiguous()
+            sem_logits = voxel_logits.index_select(0, batch.point_voxel)
+            rest = h.replace_features(h.features[:, self.num_classes :])
+            offsets, point_features = self.instance_head.from_first_conv(
+                rest, batch.point_voxel, batch.xyz
+            )
+            return BackboneOutput(sem_logits, offsets, point_features, voxel_logits)
         voxel_logits, sem_logits = self.semantic_head(voxels, batch.point_voxel)
         offsets, point_features = self.instance_head(voxels, batch.point_voxel, batch.xyz)
         return BackboneOutput(sem_logits, offsets, point_features, voxel_logits)

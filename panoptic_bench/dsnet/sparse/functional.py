@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from panoptic_bench.dsnet.sparse import gemm, pairs
+from panoptic_bench.dsnet.sparse import gemm, pairs, tiles
 from panoptic_bench.dsnet.sparse.kmap import (
     KernelMap,
     downsample_map,
@@ -123,6 +123,14 @@ def apply_kernel_map(
         raise ValueError(f"features have {features.shape[1]} channels, weight {weight.shape[1]}")
     n_off = weight.shape[0]
     if gemm.fast_enabled(cache, features, weight):
+        if tiles.use_tile_path(n_off, features.device):
+            table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
+            plan = tiles.cached_plan(cache, kmap, table, features.shape[0])
+            if tiles.plan_pays_off(plan, features.shape[1]):
+                return tiles.tile_conv(features, weight.to(features.dtype), plan, bias)
+            order = pairs.cached_order(cache, kmap)
+            w = weight.to(features.dtype).contiguous()
+            return pairs.pair_conv(features.contiguous(), w, kmap, order, bias)
         if gemm.use_table_path(kmap, n_off):
             table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
             return gemm.table_conv(features.contiguous(), weight.to(features.dtype), table, bias)
