@@ -223,3 +223,28 @@ def test_official_backbone_shortcuts_equal_straightforward(tiles_everywhere, kit
         assert float((a - b).abs().max()) <= 1e-4 * scale, key
     assert torch.equal(ref.sem_logits.argmax(1), got.sem_logits.argmax(1))
     assert got.voxel_logits.is_contiguous()
+
+
+def test_folded_mlp_equals_the_stack():
+    torch.manual_seed(9)
+    mlp = torch.nn.Sequential(
+        torch.nn.BatchNorm1d(5),
+        torch.nn.Linear(5, 7),
+        torch.nn.BatchNorm1d(7),
+        torch.nn.ReLU(),
+        torch.nn.BatchNorm1d(7),
+        torch.nn.Linear(7, 4, bias=False),
+        torch.nn.ReLU(),
+        torch.nn.Linear(4, 3),
+        torch.nn.BatchNorm1d(3),
+    ).eval()
+    _randomise_norms(mlp, 10)
+    x = torch.randn(50, 5)
+    before = x.clone()
+    with torch.no_grad():
+        torch.testing.assert_close(fused.folded_mlp(mlp, x), mlp(x), atol=1e-5, rtol=1e-5)
+        relu_first = torch.nn.Sequential(torch.nn.ReLU(), torch.nn.Linear(5, 2)).eval()
+        torch.testing.assert_close(fused.folded_mlp(relu_first, x), relu_first(x))
+    assert torch.equal(x, before)  # the input is never overwritten
+    with pytest.raises(TypeError, match="Dropout"):
+        fused.folded_mlp(torch.nn.Sequential(torch.nn.Dropout()), x)

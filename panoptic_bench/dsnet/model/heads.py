@@ -6,7 +6,7 @@ import torch
 from torch import nn
 
 from panoptic_bench.dsnet.model.backbone import ConvActNorm, ConvNormAct
-from panoptic_bench.dsnet.sparse import SparseTensor, SubMConv3d
+from panoptic_bench.dsnet.sparse import SparseTensor, SubMConv3d, fused
 
 
 class SemanticHead(nn.Module):
@@ -88,12 +88,20 @@ class InstanceHead(nn.Module):
         h = first.replace_features(layer.post(first.features, in_place=True))
         for layer in self.convs[1:]:
             h = layer(h)
-        return self.from_voxels(h.features, point_voxel, xyz)
+        return self.from_voxels(h.features, point_voxel, xyz, fold_norms=True)
 
     def from_voxels(
-        self, voxel_features: torch.Tensor, point_voxel: torch.Tensor, xyz: torch.Tensor
+        self,
+        voxel_features: torch.Tensor,
+        point_voxel: torch.Tensor,
+        xyz: torch.Tensor,
+        fold_norms: bool = False,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Point MLP on each point's voxel features (n_voxels, feature_dim); see :meth:`forward`."""
+        """Point MLP on each point's voxel features (n_voxels, feature_dim); see :meth:`forward`.
+
+        ``fold_norms``: the MLP's eval BatchNorm folded into its Linear (inference path).
+        """
         point_features = voxel_features.index_select(0, point_voxel)
-        offsets = self.mlp(torch.cat([point_features, xyz.to(point_features.dtype)], dim=1))
+        inputs = torch.cat([point_features, xyz.to(point_features.dtype)], dim=1)
+        offsets = fused.folded_mlp(self.mlp, inputs) if fold_norms else self.mlp(inputs)
         return offsets, point_features

@@ -137,12 +137,14 @@ class PanopticBackbone(nn.Module):
                 f"batch voxelized on a {batch.spatial_shape} grid, model built for "
                 f"{self.grid.size}; collate with the model's grid"
             )
-        x = self.encoder(batch)
+        fold = self.fast_inference and fused.inference_enabled(self.encoder)
+        x = self.encoder(batch, fold_norms=fold)
         if self.fast_inference:
             x.cache[FAST_KEY] = True
         voxels = self.unet(x)
         logits, first = self.semantic_head.logits, self.instance_head.convs[0]
-        if fused.inference_path(voxels, first.norm) and fused.can_merge([logits, first.conv]):
+        heads = (self.semantic_head, self.instance_head)
+        if fused.inference_path(voxels, *heads) and fused.can_merge([logits, first.conv]):
             # both heads' first convs read the U-Net output through the same map: one conv
             h = fused.merged_conv(voxels, [logits, first.conv])
             voxel_logits = h.features[:, : self.num_classes].contiguous()

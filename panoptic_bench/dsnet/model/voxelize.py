@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from panoptic_bench.dsnet.sparse import SparseTensor
+from panoptic_bench.dsnet.sparse import SparseTensor, fused
 from panoptic_bench.dsnet.sparse.tensor import decode_keys
 
 N_POINT_FEATURES = 9
@@ -303,9 +303,17 @@ class PointVoxelEncoder(nn.Module):
         self.compress = nn.Sequential(nn.Linear(point_feature_dim, voxel_feature_dim), nn.ReLU())
         self.out_channels = voxel_feature_dim
 
-    def forward(self, batch: VoxelBatch) -> SparseTensor:
-        """Voxel features as a :class:`SparseTensor` on ``batch.voxel_coords``."""
-        pf = self.point_mlp(batch.point_features)
+    def forward(self, batch: VoxelBatch, fold_norms: bool = False) -> SparseTensor:
+        """Voxel features as a :class:`SparseTensor` on ``batch.voxel_coords``.
+
+        ``fold_norms``: run the point MLP with its (eval-mode) BatchNorms folded into the
+        Linears (:func:`~panoptic_bench.dsnet.sparse.fused.folded_mlp`; the inference path of
+        the official network, same outputs up to float round-off).
+        """
+        if fold_norms:
+            pf = fused.folded_mlp(self.point_mlp, batch.point_features)
+        else:
+            pf = self.point_mlp(batch.point_features)
         n_vox = batch.voxel_coords.shape[0]
         index = batch.point_voxel[:, None].expand(-1, pf.shape[1])
         pooled = pf.new_zeros((n_vox, pf.shape[1])).scatter_reduce(

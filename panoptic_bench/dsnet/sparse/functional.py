@@ -127,17 +127,17 @@ def apply_kernel_map(
             table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
             plan = tiles.cached_plan(cache, kmap, table, features.shape[0])
             if tiles.plan_pays_off(plan, features.shape[1]):
-                return tiles.tile_conv(features, weight.to(features.dtype), plan, bias)
+                return tiles.tile_conv(features, weight.to(features.dtype), plan, bias, cache)
             order = pairs.cached_order(cache, kmap)
             w = weight.to(features.dtype).contiguous()
-            return pairs.pair_conv(features.contiguous(), w, kmap, order, bias)
+            return pairs.pair_conv(features.contiguous(), w, kmap, order, bias, cache)
         if gemm.use_table_path(kmap, n_off):
             table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
             return gemm.table_conv(features.contiguous(), weight.to(features.dtype), table, bias)
         if gemm.use_pair_path(kmap, n_off, features.device):
             order = pairs.cached_order(cache, kmap)
             w = weight.to(features.dtype).contiguous()
-            return pairs.pair_conv(features.contiguous(), w, kmap, order, bias)
+            return pairs.pair_conv(features.contiguous(), w, kmap, order, bias, cache)
     out = _MapConv.apply(
         features.contiguous(),
         weight.to(features.dtype),

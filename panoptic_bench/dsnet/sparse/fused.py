@@ -37,9 +37,12 @@ def inference_path(x: SparseTensor, *modules: nn.Module) -> bool:
     :data:`~panoptic_bench.dsnet.sparse.gemm.MIN_THREADS` threads and every module in
     ``modules`` is in eval mode.
     """
-    if not x.cache.get(gemm.FAST_KEY, False) or torch.is_grad_enabled():
-        return False
-    if torch.get_num_threads() < gemm.MIN_THREADS:
+    return bool(x.cache.get(gemm.FAST_KEY, False)) and inference_enabled(*modules)
+
+
+def inference_enabled(*modules: nn.Module) -> bool:
+    """:func:`inference_path` without the tensor: no gradient, threads, eval-mode modules."""
+    if torch.is_grad_enabled() or torch.get_num_threads() < gemm.MIN_THREADS:
         return False
     return not any(m.training for m in modules)
 
@@ -132,3 +135,58 @@ def merged_conv(x: SparseTensor, convs: list[SubMConv3d]) -> SparseTensor:
             [c.weight.new_zeros(c.out_channels) if c.bias is None else c.bias for c in convs]
         )
     return F.submanifold_conv3d(x, weight, kernel, bias)
+
+
+def folded_mlp(mlp: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
+    """Run an eval-mode ``Linear`` / ``BatchNorm1d`` / ``ReLU`` stack with the norms folded.
+
+    Each BatchNorm becomes part of the adjacent Linear (``W diag(s)``, ``W t + b`` for a norm
+    before it, ``diag(s) W``, ``s b + t`` for one after it), so the stack runs as one
+    ``addmm`` per Linear and an in-place ``relu_``: no (n, C) array per norm.
+
+    Parameters
+    ----------
+    mlp : nn.Sequential
+        Of ``nn.Linear``, ``nn.BatchNorm1d`` (eval mode, running statistics) and ``nn.ReLU``;
+        a norm folds into the Linear before it, else into the next one.
+    x : torch.Tensor
+        Array of shape (n, in_features).
+
+    Returns
+    -------
+    torch.Tensor
+        Array of shape (n, out_features): ``mlp(x)`` up to float round-off.
+    """
+    pending: tuple[torch.Tensor, torch.Tensor] | None = None  # a norm before the next Linear
+    weight = bias = None  # the Linear being built, not applied yet
+
+    def flush(h: torch.Tensor) -> torch.Tensor:
+        if weight is not None:
+            return torch.addmm(bias, h, weight.t())
+        return h if pending is None else h * pending[0] + pending[1]
+
+    for layer in mlp:
+        if isinstance(layer, nn.Linear):
+            x = x if weight is None else flush(x)  # a pending norm folds into this Linear
+            weight = layer.weight
+            bias = layer.bias if layer.bias is not None else weight.new_zeros(weight.shape[0])
+            if pending is not None:
+                scale, shift = pending
+                bias = bias + weight @ shift
+                weight = weight * scale
+                pending = None
+        elif isinstance(layer, nn.BatchNorm1d):
+            scale, shift = norm_scale_shift(layer)
+            if weight is not None:
+                weight, bias = weight * scale[:, None], bias * scale + shift
+            elif pending is None:
+                pending = (scale, shift)
+            else:
+                pending = (pending[0] * scale, pending[1] * scale + shift)
+        elif isinstance(layer, nn.ReLU):
+            h = flush(x)
+            x = torch.relu_(h) if h is not x else torch.relu(h)  # never the caller's array
+            weight = bias = pending = None
+        else:
+            raise TypeError(f"cannot fold {type(layer).__name__} into a Linear")
+    return flush(x)

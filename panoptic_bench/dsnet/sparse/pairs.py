@@ -54,12 +54,30 @@ def cached_order(cache: dict, kmap: KernelMap) -> tuple[np.ndarray, np.ndarray]:
     return got
 
 
+def workspace(cache: dict | None, name: str, numel: int, like: torch.Tensor) -> torch.Tensor:
+    """A scratch array of ``numel`` elements (``like``'s dtype and device), kept in ``cache``.
+
+    Successive convs of a frame reuse it instead of mapping (and page-faulting) a fresh
+    block of up to a few hundred MB each; the contents are garbage. Without a cache, a fresh
+    array.
+    """
+    if cache is None:
+        return like.new_empty(numel)
+    key = ("workspace", name, like.dtype, like.device)
+    buf = cache.get(key)
+    if buf is None or buf.numel() < numel:
+        buf = like.new_empty(numel)
+        cache[key] = buf
+    return buf[:numel]
+
+
 def pair_conv(
     features: torch.Tensor,
     weight: torch.Tensor,
     kmap: KernelMap,
     order: tuple[np.ndarray, np.ndarray],
     bias: torch.Tensor | None = None,
+    cache: dict | None = None,
 ) -> torch.Tensor:
     """The convolution of ``kmap`` (see :func:`~..functional.apply_kernel_map`), CPU, no grad.
 
@@ -74,6 +92,9 @@ def pair_conv(
         :func:`output_order` of ``kmap``.
     bias : torch.Tensor, optional
         Array of shape (out_channels,).
+    cache : dict, optional
+        The tensors' map cache: its :func:`workspace` arrays hold the gathered rows and the
+        products.
 
     Returns
     -------
@@ -85,11 +106,15 @@ def pair_conv(
         out = features @ weight[kmap.identity]
     else:
         out = features.new_zeros((kmap.n_out, c_out))
-    products = features.new_empty((kmap.in_idx.numel(), c_out))
+    n_pairs, c_in = kmap.in_idx.numel(), weight.shape[1]
+    products = workspace(cache, "products", n_pairs * c_out, features).view(n_pairs, c_out)
+    most = max((kmap.splits[k + 1] - kmap.splits[k] for k in range(weight.shape[0])), default=0)
+    rows = workspace(cache, "rows", most * c_in, features).view(most, c_in)
     for k in range(weight.shape[0]):
         s, e = kmap.splits[k], kmap.splits[k + 1]
         if e > s:
-            torch.mm(features.index_select(0, kmap.in_idx[s:e]), weight[k], out=products[s:e])
+            torch.index_select(features, 0, kmap.in_idx[s:e], out=rows[: e - s])
+            torch.mm(rows[: e - s], weight[k], out=products[s:e])
     if products.shape[0]:
         _gather_sum(out.numpy(), products.numpy(), *order)
     return out if bias is None else out + bias

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from panoptic_bench.dsnet.sparse import gemm
+from panoptic_bench.dsnet.sparse import gemm, pairs
 from panoptic_bench.dsnet.sparse.kmap import KernelMap
 
 TILE_ROWS = 256
@@ -215,6 +215,7 @@ def tile_conv(
     weight: torch.Tensor,
     plan: TilePlan,
     bias: torch.Tensor | None = None,
+    cache: dict | None = None,
 ) -> torch.Tensor:
     """``out[o] = sum_k features[table[o, k]] @ weight[k]`` (+ bias) over the plan's segments.
 
@@ -228,6 +229,9 @@ def tile_conv(
         :func:`build_plan` of the map's neighbour table (``n_in`` rows of input).
     bias : torch.Tensor, optional
         Array of shape (out_channels,).
+    cache : dict, optional
+        The tensors' map cache: scratch arrays come from its
+        :func:`~panoptic_bench.dsnet.sparse.pairs.workspace`.
 
     Returns
     -------
@@ -236,7 +240,10 @@ def tile_conv(
     """
     n_off, c_in, c_out = weight.shape
     n_out = plan.order.numel()
-    padded = torch.cat([features, features.new_zeros((1, c_in))])
+    n_in = features.shape[0]
+    padded = pairs.workspace(cache, "padded", (n_in + 1) * c_in, features).view(n_in + 1, c_in)
+    padded[:n_in].copy_(features)
+    padded[n_in].zero_()
     w2 = weight.reshape(n_off * c_in, c_out)
     out = features.new_empty((n_out, c_out))
     chunks = []
@@ -244,7 +251,7 @@ def tile_conv(
         step = CHUNK_ROWS
         chunks.extend((seg, a, min(seg.r1, a + step)) for a in range(seg.r0, seg.r1, step))
     most = max((seg.width * (b - a) for seg, a, b in chunks), default=0)
-    buf = features.new_empty((most, c_in))
+    buf = pairs.workspace(cache, "im2col", most * c_in, features).view(most, c_in)
     for seg, a, b in chunks:
         dst = out[a:b]
         if not seg.runs:
