@@ -26,6 +26,7 @@ from panoptic_bench.dsnet.sparse import (
     SparseTensor,
     SubMConv3d,
     apply_kernel_map,
+    downsample_map,
     fused,
     gemm,
     submanifold_map,
@@ -40,7 +41,7 @@ def tiles_everywhere(monkeypatch):
     """Every map with 2+ offsets through the tile path, small tiles and chunks, any thread count."""
     monkeypatch.setattr(gemm, "MIN_THREADS", 1)
     monkeypatch.setattr(tiles, "MIN_EFFICIENCY", 0.0)
-    monkeypatch.setattr(tiles, "NARROW_EFFICIENCY", 0.0)
+    monkeypatch.setattr(tiles, "worth_planning", lambda kmap, n_in, n_off, c_in: True)
     monkeypatch.setattr(tiles, "TILE_ROWS", 8)
     monkeypatch.setattr(tiles, "CHUNK_ROWS", 24)
 
@@ -127,13 +128,22 @@ def test_strided_submanifold_inverse_equal_per_offset(tiles_everywhere):
     assert sum(k[0] == "tiles" for k in caches) == 3  # one plan per map
 
 
-def test_paths_are_chosen_by_useful_fraction_and_width(monkeypatch):
+def test_paths_are_chosen_by_width_map_kind_and_useful_fraction(monkeypatch):
+    x = random_tensor(11, 1)
+    sub = submanifold_map(x, (3, 3, 3))
+    entry = downsample_map(x, (3, 3, 3), (2, 2, 2), (1, 1, 1))
+    n = len(x)
+    dense = gemm.density(sub, 27) >= tiles.MIN_DENSITY
+    assert tiles.worth_planning(sub, n, 27, tiles.MIN_CHANNELS) == dense
+    assert not tiles.worth_planning(sub, n, 27, tiles.MIN_CHANNELS - 1)  # narrow: pairs
+    assert not tiles.worth_planning(entry.kmap, n, 27, 512)  # strided: pairs
+    inverse = entry.kmap.transposed(n)
+    assert tiles.worth_planning(inverse, entry.kmap.n_out, 27, 512)
     plan = tiles.TilePlan(*(torch.zeros(0, dtype=torch.long),) * 3, (), pairs=0)
     monkeypatch.setattr(tiles.TilePlan, "efficiency", property(lambda self: 0.9))
-    assert tiles.plan_pays_off(plan, tiles.NARROW_CHANNELS)
-    assert not tiles.plan_pays_off(plan, tiles.NARROW_CHANNELS - 1)  # narrow: wants 0.95
+    assert tiles.plan_pays_off(plan)
     monkeypatch.setattr(tiles.TilePlan, "efficiency", property(lambda self: 0.5))
-    assert not tiles.plan_pays_off(plan, 512)
+    assert not tiles.plan_pays_off(plan)
     monkeypatch.setattr(torch, "get_num_threads", lambda: 1)
     assert not tiles.use_tile_path(9, torch.device("cpu"))
     monkeypatch.setattr(torch, "get_num_threads", lambda: 2)

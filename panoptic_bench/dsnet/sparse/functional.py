@@ -124,10 +124,13 @@ def apply_kernel_map(
     n_off = weight.shape[0]
     if gemm.fast_enabled(cache, features, weight):
         if tiles.use_tile_path(n_off, features.device):
-            table = gemm.cached_table(cache, kmap, features.shape[0], n_off)
-            plan = tiles.cached_plan(cache, kmap, table, features.shape[0])
-            if tiles.plan_pays_off(plan, features.shape[1]):
-                return tiles.tile_conv(features, weight.to(features.dtype), plan, bias, cache)
+            n_in = features.shape[0]
+            if tiles.worth_planning(kmap, n_in, n_off, features.shape[1]):
+                plan = tiles.cached_plan(
+                    cache, kmap, gemm.cached_table(cache, kmap, n_in, n_off), n_in
+                )
+                if tiles.plan_pays_off(plan):
+                    return tiles.tile_conv(features, weight.to(features.dtype), plan, bias, cache)
             order = pairs.cached_order(cache, kmap)
             w = weight.to(features.dtype).contiguous()
             return pairs.pair_conv(features.contiguous(), w, kmap, order, bias, cache)

@@ -37,28 +37,37 @@ MIN_EFFICIENCY = 0.65
 """Smallest fraction of useful slots (pairs / gathered slots) routed to this path; less
 efficient maps go to :mod:`~panoptic_bench.dsnet.sparse.pairs`."""
 
-NARROW_CHANNELS = 128
-"""Convs with fewer input channels take this path only when :data:`NARROW_EFFICIENCY` of the
-slots are useful (their GEMMs are small; per layer at 2 threads on the official network, the
-pair path won on the 16-64 channel 1x3x3 layers of the full-resolution level, 0.9 useful)."""
+MIN_CHANNELS = 128
+"""Narrower convs go to the pair path (small GEMMs: per layer at 2 threads on the official
+network, the pair path was as fast or faster on every 16-64 channel layer)."""
 
-NARROW_EFFICIENCY = 0.95
+MIN_DENSITY = 0.4
+"""Submanifold maps sparser than this are not planned (their tiles keep too many zero slots:
+the 3x3x3 map of the full-resolution level, density 0.27, 0.46 useful); nor are strided maps
+(thousands of masks, 0.3-0.6 useful). Inverse maps are (a few masks, 0.98-1.0 useful)."""
 
 MAX_OFFSETS = 62
 """Masks are int64 bit sets."""
 
 
 def use_tile_path(n_offsets: int, device: torch.device) -> bool:
-    """Whether a map of ``n_offsets`` offsets is planned here (CPU, several threads)."""
+    """Whether the inference paths of this module and the pair path apply (CPU, threads)."""
     if device.type != "cpu" or torch.get_num_threads() < gemm.MIN_THREADS:
         return False
     return 2 <= n_offsets <= MAX_OFFSETS
 
 
-def plan_pays_off(plan: TilePlan, in_channels: int) -> bool:
-    """Whether a conv of ``in_channels`` inputs runs ``plan`` (else the pair path; measured)."""
-    if in_channels < NARROW_CHANNELS:
-        return plan.efficiency >= NARROW_EFFICIENCY
+def worth_planning(kmap: KernelMap, n_in: int, n_offsets: int, in_channels: int) -> bool:
+    """Whether to build a plan for a conv (see :data:`MIN_CHANNELS`, :data:`MIN_DENSITY`)."""
+    if in_channels < MIN_CHANNELS:
+        return False
+    if kmap.identity is None:
+        return kmap.n_out > n_in  # inverse maps only
+    return gemm.density(kmap, n_offsets) >= MIN_DENSITY
+
+
+def plan_pays_off(plan: TilePlan) -> bool:
+    """Whether a planned conv runs the plan (else the pair path; measured)."""
     return plan.efficiency >= MIN_EFFICIENCY
 
 
