@@ -29,6 +29,7 @@ from panoptic_bench.dsnet.sparse import (
     downsample_map,
     fused,
     gemm,
+    pairs,
     submanifold_map,
     tiles,
 )
@@ -258,3 +259,14 @@ def test_folded_mlp_equals_the_stack():
     assert torch.equal(x, before)  # the input is never overwritten
     with pytest.raises(TypeError, match="Dropout"):
         fused.folded_mlp(torch.nn.Sequential(torch.nn.Dropout()), x)
+
+
+@pytest.mark.parametrize("c_out", [3, 37])
+def test_pair_path_pads_odd_widths(c_out):
+    x = random_tensor(12, 4)
+    kmap = submanifold_map(x, (3, 3, 3))
+    g = torch.Generator().manual_seed(13)
+    w, b = torch.randn(27, 4, c_out, generator=g), torch.randn(c_out, generator=g)
+    got = pairs.pair_conv(x.features, w, kmap, pairs.output_order(kmap), b, {})
+    assert got.shape == (len(x), c_out)
+    torch.testing.assert_close(got, apply_kernel_map(x.features, w, kmap, b), atol=1e-5, rtol=1e-5)
