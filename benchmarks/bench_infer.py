@@ -30,11 +30,13 @@ Same-run references (no external baseline exists: the official code does not bui
 paper / CPU config cost, DS-Net / Backbone-with-Fusion cost, and the backbone with kernel-map
 reuse switched off (every submanifold layer rebuilds its own map and neighbour pairs) / ours.
 
-The official network runs its inference path (``PanopticBackbone(fast_inference=True)``:
-im2col GEMMs for dense maps, per-offset GEMMs with a parallel gather-sum for sparse ones, at two
-threads or more; :mod:`panoptic_bench.dsnet.sparse.gemm`); its column ends with a check of that
-path against the straightforward per-offset path (run at one thread) on the same scan and weights:
-raw outputs and ``Predictor.predict`` classes and instance ids.
+The official network runs its inference path (``PanopticBackbone(fast_inference=True)``, at two
+threads or more without gradients: mask-sorted tile GEMMs for the wide submanifold and inverse
+convs, :mod:`panoptic_bench.dsnet.sparse.tiles`; per-offset GEMMs with a parallel gather-sum for
+the others, :mod:`~panoptic_bench.dsnet.sparse.pairs`; in-place eval BatchNorm, merged convs
+sharing an input and folded point MLPs, :mod:`~panoptic_bench.dsnet.sparse.fused`); its column
+ends with a check of that path against the straightforward per-offset path (run at one thread)
+on the same scan and weights: raw outputs and ``Predictor.predict`` classes and instance ids.
 
 Usage: ``.venv/bin/python benchmarks/bench_infer.py [--quick | --paper-only] [--threads N]
 [--configs official,cpu,... --frames N]``; the official column alone:
@@ -270,7 +272,7 @@ def worker(config: str, scan: str, repeats: int, warmup: bool, no_cache_ref: boo
 
 
 def fast_path_check(net, shift, cfg, cmap, sample, device) -> dict:
-    """The inference GEMM path vs the straightforward per-offset path, same weights and scan.
+    """The inference path vs the straightforward per-offset path, same weights and scan.
 
     Raw backbone outputs (max difference relative to the largest value) and the
     ``Predictor.predict`` DS-Net classes and instance ids (real backbone outputs, no oracle);

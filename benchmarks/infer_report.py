@@ -122,7 +122,8 @@ def check_lines(results: list[dict]) -> list[str]:
         return []
     lines = [
         "",
-        "Outputs of the inference GEMM path (`dsnet/sparse/gemm.py`, official network) vs the "
+        "Outputs of the inference path (official network: `dsnet/sparse/tiles.py`, `pairs.py`, "
+        "`fused.py`) vs the "
         "straightforward per-offset path (`fast_inference=False`, run at one thread), same "
         "random weights, same scan: max |difference| / max |value| of the raw backbone "
         "outputs, and the fraction of points whose `Predictor.predict` semantic class and "

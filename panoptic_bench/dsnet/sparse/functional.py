@@ -95,9 +95,12 @@ def apply_kernel_map(
     """Run a convolution given its kernel map.
 
     Without gradients and when ``cache`` (the tensor's map cache) holds
-    :data:`~panoptic_bench.dsnet.sparse.gemm.FAST_KEY`, dense enough maps go through the
-    inference paths of :mod:`panoptic_bench.dsnet.sparse.gemm` and, for sparse maps,
-    :mod:`panoptic_bench.dsnet.sparse.pairs` (same sums, another order).
+    :data:`~panoptic_bench.dsnet.sparse.gemm.FAST_KEY`, the convs take inference paths (same
+    sums, another order): on the CPU the mask-sorted tiles of
+    :mod:`panoptic_bench.dsnet.sparse.tiles` where they pay off
+    (:func:`~panoptic_bench.dsnet.sparse.tiles.worth_planning`), else the per-offset GEMMs of
+    :mod:`panoptic_bench.dsnet.sparse.pairs`; elsewhere the im2col table of
+    :mod:`panoptic_bench.dsnet.sparse.gemm` for dense maps.
 
     Parameters
     ----------

@@ -12,7 +12,10 @@ per-offset path (:func:`use_table_path`).
 
 Results equal the per-offset path up to float round-off (the sum runs in another order); the
 network enables this path only where it is asked to (``PanopticBackbone(fast_inference=True)``,
-the official network) so that the pinned nominal outputs stay bit for bit.
+the official network) so that the pinned nominal outputs stay bit for bit. On the CPU the
+mask-sorted tiles of :mod:`panoptic_bench.dsnet.sparse.tiles` replace it (the same GEMMs without
+most zero rows); the table path remains for other devices, and its neighbour tables are what
+the tiles are planned from.
 """
 
 from __future__ import annotations
