@@ -217,3 +217,18 @@ def test_rough_field_is_smooth_with_the_asked_std():
     assert np.abs(step).std() < 0.1 * h(xy).std()
     far = h(xy + [10.0, 0.0]) - h(xy)  # 10 m apart: independent
     assert far.std() > 1.2 * h(xy).std()
+
+
+def test_verges_replace_sidewalks_by_terrain():
+    from panoptic_bench.datasets.synthetic.street import SIDEWALK, TERRAIN, build_street
+
+    def labels(verge_prob):
+        prof = dataclasses.replace(REALISTIC, verge_prob=verge_prob)
+        static, _, plan = build_street(np.random.default_rng(7), (-60.0, 60.0), prof)
+        return static.label, plan
+
+    lab, plan = labels(0.0)
+    assert (lab == SIDEWALK).any()
+    lab, plan = labels(1.0)
+    assert not (lab == SIDEWALK).any() and (lab == TERRAIN).any()
+    assert plan.curb  # things are still placed at the kerb line

@@ -79,8 +79,10 @@ class WorldProfile:
       dark patches (repairs, wet asphalt, tyre marks; reflectivity 0.04-0.2);
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
-      building, green, fence or plaza frontage per segment); ``back_row_prob``: probability of
-      the second row of buildings behind a non-building frontage; ``parking_prob`` per segment;
+      building, green, fence or plaza frontage per segment); ``verge_prob``: probability that a
+      segment's sidewalk is a grass verge (terrain at kerb height) instead; ``back_row_prob``:
+      probability of the second row of buildings behind a non-building frontage;
+      ``parking_prob`` per segment;
     - object density: mean spacing (m) per side of pedestrian groups ``ped_spacing``, parked
       bicycles ``bike_spacing``, cyclists ``cyclist_spacing``; ``traffic_gap`` range (m);
       ``lead_car_prob``: a car ahead in the ego lane;
@@ -120,6 +122,7 @@ class WorldProfile:
     sidewalk: tuple[float, float] = (3.0, 5.5)
     green_depth: tuple[float, float] = (12.0, 22.0)
     frontage_p: tuple[float, float, float, float] = (0.38, 0.36, 0.14, 0.12)
+    verge_prob: float = 0.0
     back_row_prob: float = 1.0
     parking_prob: float = 0.45
     parked_fill: float = 1.0
@@ -146,6 +149,7 @@ class WorldProfile:
             "lanes_p": abs(sum(self.lanes_p) - 1.0) < 1e-9 and min(self.lanes_p) >= 0,
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
             "parking_prob": 0.0 <= self.parking_prob <= 1.0,
+            "verge_prob": 0.0 <= self.verge_prob <= 1.0,
             "parked_fill": 0.0 <= self.parked_fill <= 1.0,
             "lead_car_prob": 0.0 <= self.lead_car_prob <= 1.0,
             "back_row_prob": 0.0 <= self.back_row_prob <= 1.0,
