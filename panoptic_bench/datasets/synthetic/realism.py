@@ -20,6 +20,9 @@ Conventions (the same estimator runs on real and synthetic scans, so only the co
   z along the ring, ``z[i] - (z[i-1] + z[i+1]) / 2``, over consecutive triples of the class
   3-15 m away whose neighbours lie within 0.5 m, as a robust std (1.4826 x median absolute
   deviation, mm): what a voxel sees of a surface's local texture;
+- **beside the road**: the ground points (parking, sidewalk, other-ground, terrain) 3-20 m away
+  whose 0.5 m cell (x, y) or one of its 8 neighbours holds a road point; the share of terrain
+  among them says whether grass verges border the road;
 - heights of sidewalk and terrain are median residuals of their points 3-20 m away from that
   plane; the ego hole is the minimum horizontal range of ground points (road, parking, sidewalk, other-ground,
   terrain) in each of 8 azimuth sectors (45 degrees,
@@ -52,6 +55,7 @@ MEASURES: dict[str, tuple[str, str]] = {
     "sidewalk_jitter_mm": ("ground: sidewalk jitter (mm)", "median"),
     "terrain_jitter_mm": ("ground: terrain jitter (mm)", "median"),
     "below_185_pct": ("ground: % of points below z = -1.85 m", "mean"),
+    "verge_terrain_pct": ("layout: % terrain among the ground points beside the road", "mean"),
     "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
     "terrain_h": ("ground: terrain height above the road (m)", "median"),
     "building_y": ("layout: building median lateral distance (m)", "median"),
@@ -129,6 +133,25 @@ def _plane(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray | None:
         coef = np.linalg.lstsq(a, z[keep], rcond=None)[0]
         keep = np.abs(z - (coef[0] * x + coef[1] * y + coef[2])) < 0.15
     return coef
+
+
+def _beside_road_terrain(x, y, r, raw: np.ndarray, cell: float = 0.5) -> float:
+    """% terrain among the non-road ground points 3-20 m away next to a road cell."""
+    road = raw == ROAD
+    ground = np.isin(raw, (44, 48, 49, TERRAIN)) & (r >= 3) & (r <= 20)
+    if not road.any() or not ground.any():
+        return float("nan")
+    n = int(np.ceil(2 * 80.0 / cell)) + 3
+    i = np.clip(np.floor((x + 80.0) / cell).astype(np.int64) + 1, 1, n - 2)
+    j = np.clip(np.floor((y + 80.0) / cell).astype(np.int64) + 1, 1, n - 2)
+    occ = np.zeros((n, n), bool)
+    occ[i[road], j[road]] = True
+    near = np.zeros_like(occ)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            near |= np.roll(np.roll(occ, di, 0), dj, 1)
+    beside = ground & near[i, j]
+    return _pct(raw[beside] == TERRAIN) if beside.any() else float("nan")
 
 
 def _jitter(x, y, z, r, mask: np.ndarray) -> float:
@@ -219,6 +242,7 @@ def scan_measures(
         near = (r >= 3) & (r <= 20)
         m["sidewalk_h"] = _median(resid[near & (raw == SIDEWALK)])
         m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
+    m["verge_terrain_pct"] = _beside_road_terrain(x, y, r, raw)
     for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
         m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
     ring = recover_rings(points[:, :3])
