@@ -76,7 +76,9 @@ class WorldProfile:
       green areas above the road (m, empty = flat); ``terrain_rough``: roughness (m, mean ray
       penetration) of those raised green areas (real grass is about twice as rough, point to
       point, as road and sidewalk); ``road_dark``: fraction of the road and parking area covered by
-      dark patches (repairs, wet asphalt, tyre marks; reflectivity 0.04-0.2);
+      dark patches (repairs, wet asphalt, tyre marks; reflectivity 0.04-0.2); ``road_reflect``,
+      ``sidewalk_reflect``: base reflectivity of the road paint and of the sidewalk boxes (their
+      contrast is a road-vs-sidewalk cue: realistic medians 0.26 / 0.34, real 0.28 / 0.31);
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
       building, green, fence or plaza frontage per segment); ``verge_prob``: probability that a
@@ -116,6 +118,8 @@ class WorldProfile:
     terrain_raise: tuple[float, ...] = ()
     terrain_rough: float = 0.03
     road_dark: float = 0.0
+    road_reflect: float = 0.3
+    sidewalk_reflect: float = 0.4
     lanes_p: tuple[float, float] = (0.45, 0.55)
     lane_width: tuple[float, float] = (3.3, 3.8)
     shoulder: tuple[float, float] = (0.5, 2.0)
@@ -174,6 +178,8 @@ class WorldProfile:
             "camber": 0.0 <= self.camber <= 0.1,
             "terrain_rough": 0.0 <= self.terrain_rough <= 0.5,
             "road_dark": 0.0 <= self.road_dark <= 1.0,
+            "road_reflect": 0.0 <= self.road_reflect <= 1.0,
+            "sidewalk_reflect": 0.0 <= self.sidewalk_reflect <= 1.0,
         }
         problems += [
             f"{k} = {getattr(self, k)!r} is out of range" for k, ok in checks.items() if not ok

@@ -152,7 +152,7 @@ def _segment(
         y0, y1, refl = side * y_curb, side * y_front, rng.uniform(0.3, 0.5)
         b.box(x0, x1, y0, y1, 0.0, kerb, TERRAIN, refl, rough=prof.terrain_rough)
     else:
-        b.box(x0, x1, side * y_curb, side * y_front, 0.0, kerb, SIDEWALK, 0.4)
+        b.box(x0, x1, side * y_curb, side * y_front, 0.0, kerb, SIDEWALK, prof.sidewalk_reflect)
     kind = rng.choice(["building", "green", "fence", "plaza"], p=list(prof.frontage_p))
     back = y_front + rng.uniform(*prof.green_depth)
     if kind == "building":
@@ -281,7 +281,7 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
 
 
 def _markings(gm: GroundMap, rng, plan: StreetPlan, x0: float, x1: float) -> None:
-    gm.paint(x0, x1, -plan.road_half, plan.road_half, ROAD, 0.3)
+    gm.paint(x0, x1, -plan.road_half, plan.road_half, ROAD, plan.profile.road_reflect)
     noise = rng.normal(0.0, 0.025, size=gm.reflect.shape).astype(np.float32)
     gm.reflect += np.where(gm.label == ROAD, noise, 0.0).astype(np.float32)
     lines = [0.0] + [
