@@ -40,11 +40,16 @@ def pairs_everywhere(monkeypatch):
     monkeypatch.setattr(tiles, "use_tile_path", lambda n_offsets, device: False)
 
 
-def random_tensor(seed: int, channels: int, occupancy: float = 0.35) -> SparseTensor:
+def random_tensor(
+    seed: int, channels: int, occupancy: float = 0.35, fast: bool = False
+) -> SparseTensor:
+    """Two random scans on SHAPE, shuffled rows; ``fast`` marks it for the inference paths."""
     g = torch.Generator().manual_seed(seed)
     coords = torch.nonzero(torch.rand((2, *SHAPE), generator=g) < occupancy).to(torch.int32)
     coords = coords[torch.randperm(coords.shape[0], generator=g)]
-    return SparseTensor(torch.randn(coords.shape[0], channels, generator=g), coords, SHAPE)
+    cache = {gemm.FAST_KEY: True} if fast else None
+    feats = torch.randn(coords.shape[0], channels, generator=g)
+    return SparseTensor(feats, coords, SHAPE, cache=cache)
 
 
 def fresh(x: SparseTensor, fast: bool) -> SparseTensor:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from test_sparse_gemm import random_tensor  # noqa: E402
 
 from panoptic_bench.dsnet.checkpoint import build_backbone, build_grid
 from panoptic_bench.dsnet.config import load_config
@@ -23,7 +24,6 @@ from panoptic_bench.dsnet.model.voxelize import collate
 from panoptic_bench.dsnet.sparse import (
     SparseConv3d,
     SparseInverseConv3d,
-    SparseTensor,
     SubMConv3d,
     apply_kernel_map,
     downsample_map,
@@ -34,8 +34,6 @@ from panoptic_bench.dsnet.sparse import (
     tiles,
 )
 
-SHAPE = (9, 8, 6)
-
 
 @pytest.fixture
 def tiles_everywhere(monkeypatch):
@@ -45,15 +43,6 @@ def tiles_everywhere(monkeypatch):
     monkeypatch.setattr(tiles, "worth_planning", lambda kmap, n_in, n_off, c_in: True)
     monkeypatch.setattr(tiles, "TILE_ROWS", 8)
     monkeypatch.setattr(tiles, "CHUNK_ROWS", 24)
-
-
-def random_tensor(seed: int, channels: int, occupancy: float = 0.35, fast: bool = False):
-    g = torch.Generator().manual_seed(seed)
-    coords = torch.nonzero(torch.rand((2, *SHAPE), generator=g) < occupancy).to(torch.int32)
-    coords = coords[torch.randperm(coords.shape[0], generator=g)]
-    cache = {gemm.FAST_KEY: True} if fast else None
-    feats = torch.randn(coords.shape[0], channels, generator=g)
-    return SparseTensor(feats, coords, SHAPE, cache=cache)
 
 
 def test_plan_covers_every_pair_once():
