@@ -73,6 +73,7 @@ def test_defaults_round_trip_and_types():
         ({"optim": {"lr_schedule": "step"}}, "optim.lr_schedule"),
         ({"optim": {"lr_min": 0.1}}, "optim.lr_min"),
         ({"optim": {"lr_flat_epochs": -1}}, "optim.lr_flat_epochs"),
+        ({"model": {"remission_input": "no"}}, "model.remission_input"),
     ],
 )
 def test_rejects_bad_input_naming_key_and_file(tmp_path: Path, mapping, needle):
@@ -101,3 +102,14 @@ def test_lr_schedule_hand_worked():
     assert cos.lr_at(4, 6) == pytest.approx(0.0011)  # half-way: (lr + lr_min) / 2
     assert cos.lr_at(3, 6) > cos.lr_at(4, 6) > cos.lr_at(5, 6) > 0.0002
     assert cos.lr_at(6, 6) == pytest.approx(0.0002)
+
+
+def test_remission_input_reaches_the_network():
+    from panoptic_bench.dsnet.checkpoint import build_backbone
+
+    cfg = DSNetConfig()
+    assert cfg.model.remission_input is True
+    assert build_backbone(cfg, 20).remission_input is True
+    off = cfg.replace(model={"remission_input": False})
+    assert DSNetConfig.from_dict(off.to_dict()) == off
+    assert build_backbone(off, 20).remission_input is False

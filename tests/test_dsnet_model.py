@@ -110,3 +110,45 @@ def test_overfits_one_scene():
     assert losses[-1] < 0.5 * losses[0]
     acc = (out.sem_logits.argmax(1) == sem).float().mean().item()  # train mode: batch stats
     assert acc > 0.8
+
+
+def test_remission_input_false_ignores_remission_and_keeps_the_batch():
+    """``remission_input=False`` zeroes the remission channel; the default network reads it."""
+    pts, _, _ = scene(4)
+    other = pts.clone()
+    other[:, 3] = torch.rand(pts.shape[0], generator=torch.Generator().manual_seed(9))
+    outputs = {}
+    for use in (True, False):
+        torch.manual_seed(0)
+        model = PanopticBackbone(
+            4,
+            init_size=4,
+            grid=GRID,
+            point_hidden=(16,),
+            point_feature_dim=16,
+            voxel_feature_dim=8,
+            offset_hidden=8,
+            remission_input=use,
+        ).eval()
+        a, b = collate([pts], GRID), collate([other], GRID)
+        before = b.point_features.clone()
+        with torch.no_grad():
+            outputs[use] = (model(a).sem_logits, model(b).sem_logits)
+        assert torch.equal(b.point_features, before)  # the caller's batch is not modified
+    assert not torch.allclose(*outputs[True])
+    assert torch.equal(*outputs[False])
+    # zero remission in the input gives what remission_input=False gives, weights equal
+    zeroed = pts.clone()
+    zeroed[:, 3] = 0.0
+    torch.manual_seed(0)
+    plain = PanopticBackbone(
+        4,
+        init_size=4,
+        grid=GRID,
+        point_hidden=(16,),
+        point_feature_dim=16,
+        voxel_feature_dim=8,
+        offset_hidden=8,
+    ).eval()
+    with torch.no_grad():
+        assert torch.equal(plain(collate([zeroed], GRID)).sem_logits, outputs[False][0])

@@ -136,6 +136,7 @@ def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
         spconv1_rulebooks=is_official(cfg),
         offset_norm_first=is_official(cfg),
         fast_inference=is_official(cfg),
+        remission_input=m.remission_input,
     )
 
 

@@ -71,10 +71,14 @@ class ModelConfig:
     ``voxel_feature_dim``: compressed voxel features entering the U-Net; ``offset_hidden``:
     hidden width of the offset MLP (DS-Net: ``init_size``). The per-point features handed to
     dynamic shifting have ``init_size`` channels. ``variant``: :class:`NetworkVariant`
-    (``nominal`` when a config or checkpoint does not name one).
+    (``nominal`` when a config or checkpoint does not name one). ``remission_input``: False
+    feeds the network a zero remission channel (same 9-D input, same weights' shapes), for a
+    model that must not lean on a sensor's intensity calibration (the synthetic-to-real
+    shortcut of issue 13); inference follows the checkpoint's config.
     """
 
     variant: NetworkVariant = NetworkVariant.NOMINAL
+    remission_input: bool = True
     init_size: int = 32
     point_hidden: tuple[int, ...] = (64, 128, 256)
     point_feature_dim: int = 256

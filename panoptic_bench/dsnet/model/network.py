@@ -16,6 +16,7 @@ Example
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -93,6 +94,9 @@ class PanopticBackbone(nn.Module):
         :mod:`panoptic_bench.dsnet.sparse.gemm` (same outputs up to float round-off; training
         and calls with gradients are unchanged). True for the official network only, so the
         nominal network's pinned outputs stay bit for bit.
+    remission_input : bool
+        False: the remission channel (last of the 9 point features) is replaced by zeros before
+        the point MLP, so predictions do not depend on remission (the batch is not modified).
 
     Both flags are False for the nominal network and True for the official one
     (``model.variant`` of the config, see :func:`panoptic_bench.dsnet.checkpoint.build_backbone`).
@@ -110,9 +114,11 @@ class PanopticBackbone(nn.Module):
         spconv1_rulebooks: bool = False,
         offset_norm_first: bool = False,
         fast_inference: bool = False,
+        remission_input: bool = True,
     ) -> None:
         super().__init__()
         self.fast_inference = bool(fast_inference)
+        self.remission_input = bool(remission_input)
         self.grid = CylinderGrid() if grid is None else grid
         self.num_classes = num_classes
         self.encoder = PointVoxelEncoder(
@@ -128,7 +134,8 @@ class PanopticBackbone(nn.Module):
         )
 
     def extra_repr(self) -> str:
-        return f"num_classes={self.num_classes}, grid_size={self.grid.size}"
+        extra = "" if self.remission_input else ", remission_input=False"
+        return f"num_classes={self.num_classes}, grid_size={self.grid.size}{extra}"
 
     def forward(self, batch: VoxelBatch) -> BackboneOutput:
         """Run on a batch from :func:`panoptic_bench.dsnet.model.voxelize.collate` (same device)."""
@@ -137,6 +144,10 @@ class PanopticBackbone(nn.Module):
                 f"batch voxelized on a {batch.spatial_shape} grid, model built for "
                 f"{self.grid.size}; collate with the model's grid"
             )
+        if not self.remission_input:
+            feats = batch.point_features.clone()
+            feats[:, -1] = 0.0
+            batch = dataclasses.replace(batch, point_features=feats)
         fold = self.fast_inference and fused.inference_enabled(self.encoder)
         x = self.encoder(batch, fold_norms=fold)
         if self.fast_inference:
