@@ -12,7 +12,7 @@ from panoptic_bench.dsnet.training.losses import instance_centers, offset_loss, 
 GRID = CylinderGrid(size=(32, 32, 8), rho_range=(1, 20), z_range=(-2, 2))
 
 
-def tiny_model(num_classes: int = 4) -> PanopticBackbone:
+def tiny_model(num_classes: int = 4, remission_input: bool = True) -> PanopticBackbone:
     return PanopticBackbone(
         num_classes,
         init_size=4,
@@ -21,6 +21,7 @@ def tiny_model(num_classes: int = 4) -> PanopticBackbone:
         point_feature_dim=16,
         voxel_feature_dim=8,
         offset_hidden=8,
+        remission_input=remission_input,
     )
 
 
@@ -120,16 +121,7 @@ def test_remission_input_false_ignores_remission_and_keeps_the_batch():
     outputs = {}
     for use in (True, False):
         torch.manual_seed(0)
-        model = PanopticBackbone(
-            4,
-            init_size=4,
-            grid=GRID,
-            point_hidden=(16,),
-            point_feature_dim=16,
-            voxel_feature_dim=8,
-            offset_hidden=8,
-            remission_input=use,
-        ).eval()
+        model = tiny_model(remission_input=use).eval()
         a, b = collate([pts], GRID), collate([other], GRID)
         before = b.point_features.clone()
         with torch.no_grad():
@@ -141,14 +133,6 @@ def test_remission_input_false_ignores_remission_and_keeps_the_batch():
     zeroed = pts.clone()
     zeroed[:, 3] = 0.0
     torch.manual_seed(0)
-    plain = PanopticBackbone(
-        4,
-        init_size=4,
-        grid=GRID,
-        point_hidden=(16,),
-        point_feature_dim=16,
-        voxel_feature_dim=8,
-        offset_hidden=8,
-    ).eval()
+    plain = tiny_model().eval()
     with torch.no_grad():
         assert torch.equal(plain(collate([zeroed], GRID)).sem_logits, outputs[False][0])
