@@ -87,7 +87,10 @@ def test_profile_round_trip_and_rejects_bad_keys(tmp_path: Path):
     matched = load_profile(str(REPO / "configs" / "synth_realistic_matched.yaml"))
     changed = {k for k, v in matched.to_dict().items() if REALISTIC.to_dict()[k] != v}
     assert changed == {"name", "road_reflect", "sidewalk_reflect", "verge_prob"}
-    assert matched.sidewalk_reflect - matched.road_reflect < REALISTIC.sidewalk_reflect - REALISTIC.road_reflect
+    assert (
+        matched.sidewalk_reflect - matched.road_reflect
+        < REALISTIC.sidewalk_reflect - REALISTIC.road_reflect
+    )
     bad = tmp_path / "bad.yaml"
     bad.write_text("base: nope\n")
     with pytest.raises(InputError, match="unknown base profile"):
