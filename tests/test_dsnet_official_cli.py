@@ -228,6 +228,16 @@ def test_shipped_names(tmp_path):
     assert resolve_checkpoint(tmp_path / "a.pt") == tmp_path / "a.pt"
 
 
+def test_checkpoint_show_and_export_take_short_names(tmp_path, capsys):
+    assert main(["checkpoint", "show", "synthetic"]) == 0
+    assert capsys.readouterr().out.startswith("stage ds, epoch")
+    dst = tmp_path / "copy.pt"
+    assert main(["checkpoint", "export", "synthetic-backbone", "--out", str(dst)]) == 0
+    assert load_checkpoint(dst).stage == load_checkpoint(resolve_checkpoint("synthetic-backbone")).stage
+    assert main(["checkpoint", "show", "synthtic"]) == 2
+    assert "unknown checkpoint name 'synthtic'" in capsys.readouterr().err
+
+
 def test_infer_refuses_a_class_map_that_does_not_fit(imported, tmp_path, capsys):
     from panoptic_bench.dsnet.checkpoint import save_checkpoint
 

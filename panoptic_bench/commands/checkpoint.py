@@ -13,12 +13,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     show = sub.add_parser("show", help="stage, epoch, class map, metrics and config")
-    show.add_argument("checkpoint")
+    show.add_argument("checkpoint", help="a .pt file or a shipped short name (e.g. semantickitti-cpu)")
     show.set_defaults(func=show_handler)
     exp = sub.add_parser(
         "export", help="copy without optimizer/RNG state (e.g. panoptic_bench/checkpoints/*.pt)"
     )
-    exp.add_argument("checkpoint")
+    exp.add_argument("checkpoint", help="a .pt file or a shipped short name")
     exp.add_argument("--out", required=True, help="destination .pt")
     exp.add_argument("--half", action="store_true", help="store weights as float16")
     exp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -40,9 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def show_handler(args: argparse.Namespace) -> int:
     import yaml
 
-    from panoptic_bench.dsnet.checkpoint import load_checkpoint
+    from panoptic_bench.dsnet.checkpoint import load_checkpoint, resolve_checkpoint
 
-    ck = load_checkpoint(args.checkpoint)
+    ck = load_checkpoint(resolve_checkpoint(args.checkpoint))
     n_params = sum(v.numel() for v in ck.backbone.values() if v.is_floating_point())
     print(
         f"stage {ck.stage}, epoch {ck.epoch}, dataset {ck.class_map.dataset}, "
@@ -63,11 +63,12 @@ def show_handler(args: argparse.Namespace) -> int:
 def export_handler(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from panoptic_bench.dsnet.checkpoint import export_checkpoint
+    from panoptic_bench.dsnet.checkpoint import export_checkpoint, resolve_checkpoint
     from panoptic_bench.io import check_output_file
 
-    check_output_file(args.out, overwrite=args.overwrite, inputs=(args.checkpoint,))
-    out = export_checkpoint(args.checkpoint, args.out, half=args.half)
+    src = resolve_checkpoint(args.checkpoint)
+    check_output_file(args.out, overwrite=args.overwrite, inputs=(src,))
+    out = export_checkpoint(src, args.out, half=args.half)
     print(f"{out} ({Path(out).stat().st_size / 1e6:.1f} MB)")
     return 0
 
