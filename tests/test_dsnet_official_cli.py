@@ -233,7 +233,10 @@ def test_checkpoint_show_and_export_take_short_names(tmp_path, capsys):
     assert capsys.readouterr().out.startswith("stage ds, epoch")
     dst = tmp_path / "copy.pt"
     assert main(["checkpoint", "export", "synthetic-backbone", "--out", str(dst)]) == 0
-    assert load_checkpoint(dst).stage == load_checkpoint(resolve_checkpoint("synthetic-backbone")).stage
+    assert (
+        load_checkpoint(dst).stage
+        == load_checkpoint(resolve_checkpoint("synthetic-backbone")).stage
+    )
     assert main(["checkpoint", "show", "synthtic"]) == 2
     assert "unknown checkpoint name 'synthtic'" in capsys.readouterr().err
 

@@ -13,7 +13,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     show = sub.add_parser("show", help="stage, epoch, class map, metrics and config")
-    show.add_argument("checkpoint", help="a .pt file or a shipped short name (e.g. semantickitti-cpu)")
+    show.add_argument(
+        "checkpoint", help="a .pt file or a shipped short name (e.g. semantickitti-cpu)"
+    )
     show.set_defaults(func=show_handler)
     exp = sub.add_parser(
         "export", help="copy without optimizer/RNG state (e.g. panoptic_bench/checkpoints/*.pt)"
