@@ -233,10 +233,12 @@ def test_checkpoint_show_and_export_take_short_names(tmp_path, capsys):
     assert capsys.readouterr().out.startswith("stage ds, epoch")
     dst = tmp_path / "copy.pt"
     assert main(["checkpoint", "export", "synthetic-backbone", "--out", str(dst)]) == 0
-    assert (
-        load_checkpoint(dst).stage
-        == load_checkpoint(resolve_checkpoint("synthetic-backbone")).stage
+    copied, shipped = (
+        load_checkpoint(dst),
+        load_checkpoint(resolve_checkpoint("synthetic-backbone")),
     )
+    assert copied.stage == shipped.stage and copied.backbone.keys() == shipped.backbone.keys()
+    assert all(torch.equal(copied.backbone[k], v) for k, v in shipped.backbone.items())
     assert main(["checkpoint", "show", "synthtic"]) == 2
     assert "unknown checkpoint name 'synthtic'" in capsys.readouterr().err
 
