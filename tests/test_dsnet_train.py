@@ -292,3 +292,41 @@ def test_nuscenes_root_train_infer_eval(cfg: DSNetConfig, tmp_path: Path):
                 "--output", str(tmp_path / "eval")]) == 0  # fmt: skip
     scores = json.loads((tmp_path / "eval" / "scores.json").read_text())["all"]
     assert 0.0 <= scores["mIoU"] <= 1.0
+
+
+def test_split_by_sequence_from_the_command_line(cfg: DSNetConfig, tmp_path: Path, capsys):
+    """--train-sequences / --val-sequences override the config, are stored, never overlap."""
+    world = write_tiny_world(tmp_path / "w", {"00": 2, "01": 3, "08": 1})
+    cfg_path = tmp_path / "tiny.yaml"
+    save_config(cfg, cfg_path)  # config: train 00, validate 08
+    run = tmp_path / "run"
+    args = ["train", "--config", str(cfg_path), "--data", str(world), "--out", str(run)]
+    fold = ["--train-sequences", "1,8", "--val-sequences", "00", "--no-progress"]
+    assert cli([*args, "--stage", "semantic", "--epochs", "1", *fold]) == 0
+    stored = load_checkpoint(run / "checkpoints" / "semantic.pt").config.data
+    assert (stored.train_sequences, stored.val_sequences) == (("01", "08"), ("00",))
+    assert json.loads((run / "run.json").read_text())["notes"] == "4 train / 2 val samples"
+    assert "val_sequences:\n  - '00'" in (run / "config.yaml").read_text()
+    capsys.readouterr()
+    # a sequence both trained on and validated on: exit 2, the sequence named, nothing trained
+    leak = tmp_path / "leak"
+    bad = ["train", "--config", str(cfg_path), "--data", str(world), "--out", str(leak)]
+    assert cli([*bad, "--val-sequences", "00", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "00 both trained on and validated on" in err and "Traceback" not in err
+    assert not (leak / "checkpoints").exists()
+    # resuming the fold without its options would switch the data: refused, checkpoint kept
+    before = (run / "checkpoints" / "semantic.pt").read_bytes()
+    resume = [*args, "--stage", "semantic", "--epochs", "2", "--resume", "--no-progress"]
+    assert cli(resume) == 2
+    err = capsys.readouterr().err
+    assert "cannot resume with a different config" in err and "data.train_sequences" in err
+    assert (run / "checkpoints" / "semantic.pt").read_bytes() == before
+    assert cli([*resume, *fold[:4]]) == 0
+    assert load_checkpoint(run / "checkpoints" / "semantic.pt").epoch == 2
+    # nuScenes configs have no sequences
+    nus = tmp_path / "nus.yaml"
+    save_config(cfg.replace(data={"format": DatasetFormat.NUSCENES}), nus)
+    argv = ["train", "--config", str(nus), "--data", str(world), "--out", str(tmp_path / "n")]
+    assert cli([*argv, "--val-sequences", "08"]) == 2
+    assert "need a SemanticKITTI config" in capsys.readouterr().err

@@ -30,6 +30,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
     p.add_argument("--notes", default="", help="free text stored in RUN_DIR/run.json")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument(
+        "--train-sequences",
+        action=ca.SequencesAction,
+        metavar="SEQS",
+        help="SemanticKITTI sequences to train on, e.g. 00,01 (overrides data.train_sequences)",
+    )
+    p.add_argument(
+        "--val-sequences",
+        action=ca.SequencesAction,
+        metavar="SEQS",
+        help="held-out sequences to validate on, e.g. 05,06 (overrides data.val_sequences); "
+        "one k-fold split per run, the split is stored in the run's checkpoints",
+    )
     p.set_defaults(func=handler)
 
 
@@ -47,7 +60,7 @@ def handler(args: argparse.Namespace) -> int:
     check_output_location(args.out, (args.data,))  # never write into the dataset
     if args.threads:
         torch.set_num_threads(args.threads)
-    cfg = load_config(args.config)
+    cfg = with_sequences(load_config(args.config), args.train_sequences, args.val_sequences)
     paths = train(
         cfg,
         args.data,
@@ -63,3 +76,39 @@ def handler(args: argparse.Namespace) -> int:
     for stage, path in paths.items():
         print(f"{stage}: {path}")
     return 0
+
+
+def with_sequences(cfg, train: list[str] | None, val: list[str] | None):
+    """``cfg`` with its SemanticKITTI train / validation sequences replaced where given.
+
+    Raises
+    ------
+    InputError
+        Sequences given for a nuScenes config, or a sequence in both sets (a frame-level leak:
+        consecutive frames of one sequence are near-duplicates, so validate by held-out sequence).
+    """
+    import dataclasses
+
+    from panoptic_bench.dsnet.config import DatasetFormat
+    from panoptic_bench.errors import InputError
+
+    if train is None and val is None:
+        return cfg
+    if cfg.data.format is not DatasetFormat.SEMANTICKITTI:
+        raise InputError(
+            "--train-sequences / --val-sequences need a SemanticKITTI config "
+            f"(data.format is {cfg.data.format.value})"
+        )
+    data = dataclasses.replace(
+        cfg.data,
+        train_sequences=tuple(train) if train is not None else cfg.data.train_sequences,
+        val_sequences=tuple(val) if val is not None else cfg.data.val_sequences,
+    )
+    both = sorted(set(data.train_sequences) & set(data.val_sequences))
+    if both:
+        raise InputError(
+            f"sequence(s) {', '.join(both)} both trained on and validated on "
+            f"(train {','.join(data.train_sequences)}; validation {','.join(data.val_sequences)}): "
+            "validate on held-out sequences; give both --train-sequences and --val-sequences"
+        )
+    return dataclasses.replace(cfg, data=data)

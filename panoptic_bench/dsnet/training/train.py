@@ -224,6 +224,25 @@ def _trainable(stage: str, backbone: nn.Module, shift: nn.Module | None, cfg: DS
     return params
 
 
+def _check_same_config(stored: DSNetConfig, cfg: DSNetConfig, path: Path) -> None:
+    """Resume only with the config the checkpoint was trained with (else: InputError)."""
+    a, b = stored.to_dict(), cfg.to_dict()
+    diff = [
+        f"{sec}.{key}: {a[sec].get(key)!r} in the checkpoint, {b[sec].get(key)!r} now"
+        for sec in sorted(set(a) | set(b))
+        for key in sorted(set(a.get(sec, {})) | set(b.get(sec, {})))
+        if a.get(sec, {}).get(key) != b.get(sec, {}).get(key)
+    ]
+    if diff:
+        raise InputError(
+            "cannot resume with a different config ("
+            + "; ".join(diff[:4])
+            + (f"; {len(diff) - 4} more" if len(diff) > 4 else "")
+            + "): give the run's config.yaml and the same options",
+            path,
+        )
+
+
 def run_stage(
     stage: str,
     ctx: TrainContext,
@@ -235,6 +254,8 @@ def run_stage(
     """Train one stage to its epoch count; returns the path of its checkpoint."""
     path = checkpoint_path(ctx.run_dir, stage)
     own = load_checkpoint(path) if resume and path.is_file() else None
+    if own is not None:
+        _check_same_config(own.config, ctx.cfg, path)
     backbone, shift = _build_networks(ctx, stage, own or _previous_checkpoint(ctx, stage, init))
     params = _trainable(stage, backbone, shift, ctx.cfg)
     optimizer = torch.optim.Adam(
