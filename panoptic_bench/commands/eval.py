@@ -10,7 +10,12 @@ import argparse
 import importlib
 
 #: modules of panoptic_bench.commands that add a sub-command to ``eval``
-EVAL_TARGETS: list[str] = ["semantickitti", "eval_semantickitti_4d", "eval_nuscenes"]
+EVAL_TARGETS: list[str] = [
+    "semantickitti",
+    "eval_semantickitti_4d",
+    "eval_nuscenes",
+    "eval_compare",
+]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

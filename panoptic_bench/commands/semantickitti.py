@@ -49,6 +49,15 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
         metavar="EDGES",
         help="also score per range bin, comma-separated edges in metres, e.g. 0,10,20,30,40,50,80",
     )
+    p.add_argument(
+        "--bootstrap",
+        type=ca.int_range(0, 100000),
+        default=0,
+        metavar="N",
+        help="also give 95%% confidence intervals from N scan-level bootstrap replicates "
+        "(scores.json key 'bootstrap'; 0 = off, the default); per_scan.npz is always written, "
+        "see 'eval compare'",
+    )
     p.add_argument("--output", required=True, help="output directory (not inside the inputs)")
     ca.add_overwrite(p, "the --output directory")
     p.set_defaults(func=run_eval)
@@ -96,9 +105,13 @@ def run_eval(args: argparse.Namespace) -> int:
         by_range=args.by_range,
     )
     with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
-        scores = ev.write(tmp)
+        scores = ev.write(tmp, bootstrap=args.bootstrap)
     print(f"{ev.n_scans} scans of sequences {', '.join(ev.sequences)} (values in %):")
     print(percent_table(scores))
+    if "bootstrap" in scores:
+        from panoptic_bench.evaluation.output import interval_table
+
+        print(interval_table(scores["bootstrap"]))
     print(f"results written to {args.output}")
     return 0
 

@@ -29,6 +29,8 @@ __all__ = [
     "CODALAB_KEYS",
     "check_output_location",
     "codalab_scores",
+    "comparison_table",
+    "interval_table",
     "percent_table",
     "scores_dict",
     "write_scores",
@@ -129,6 +131,40 @@ def percent_table(scores: Mapping[str, Any]) -> str:
         points = "" if b.get("points") is None else str(b["points"])
         rows.append([name, points, *(_pct(b["all"][m]) for m in metrics)])
     return out + _text_table(head, rows)
+
+
+def interval_table(boot: Mapping[str, Any]) -> str:
+    """The ``bootstrap`` entry of ``scores.json`` as a text table in percent."""
+    rows = [
+        [name, _pct(m["estimate"]), _pct(m["low"]), _pct(m["high"])]
+        for name, m in boot["metrics"].items()
+    ]
+    level = f"{100 * boot['level']:g} %"
+    head = f"{level} intervals, {boot['n_boot']} bootstrap replicates of {boot['n_scans']} scans "
+    return head + f"({boot['caveat']}):\n" + _text_table(["", "value", "low", "high"], rows)
+
+
+def comparison_table(cmp: Mapping[str, Any], names: Sequence[str] = ("A", "B")) -> str:
+    """A paired comparison (:meth:`PairedResult.to_dict`) as a text table in percent."""
+    a, b = names
+    rows = [
+        [
+            name,
+            _pct(m["a"]),
+            _pct(m["b"]),
+            f"{100 * m['diff']:+7.2f}",
+            f"[{100 * m['low']:+.2f}, {100 * m['high']:+.2f}]",
+            f"{m['p_b_greater']:.3f}",
+        ]
+        for name, m in cmp["metrics"].items()
+    ]
+    level = f"{100 * cmp['level']:g} %"
+    head = ["", "A", "B", "B - A", f"{level} interval", "P(B > A)"]
+    intro = (
+        f"A = {a}\nB = {b}\npaired bootstrap, {cmp['n_boot']} replicates of the same "
+        f"{cmp['n_scans']} scans ({cmp['caveat']}):\n"
+    )
+    return intro + _text_table(head, rows)
 
 
 def write_scores(

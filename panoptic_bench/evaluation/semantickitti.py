@@ -237,18 +237,42 @@ class SemanticKittiEvaluation:
     n_scans: int
     sequences: tuple[str, ...]
     min_points: int = OFFICIAL_MIN_POINTS
+    per_scan: tuple[PanopticStats, ...] = ()
+    scan_ids: tuple[str, ...] = ()
 
     def result(self) -> PanopticResult:
         """Per-class and mean metrics."""
         return self.stats.compute()
 
-    def write(self, out_dir: str | Path) -> dict:
-        """Write ``scores.txt``, ``scores.json`` and ``per_class.csv`` into ``out_dir``.
+    def per_scan_counts(self):
+        """The per-scan counts as :class:`~panoptic_bench.evaluation.per_scan.PerScan`."""
+        from panoptic_bench.evaluation.per_scan import PerScan
 
+        labels = sk.LABELS
+        return PerScan(
+            self.scan_ids, self.per_scan, labels.thing_ids, labels.stuff_ids, labels.class_names
+        )
+
+    def write(self, out_dir: str | Path, bootstrap: int = 0) -> dict:
+        """Write ``scores.txt``, ``scores.json``, ``per_class.csv`` and ``per_scan.npz``.
+
+        ``bootstrap`` > 0 adds 95 % scan-level bootstrap intervals of the headline metrics to
+        ``scores.json`` (key ``bootstrap``; :mod:`panoptic_bench.metrics.bootstrap`, seed 0).
         Returns the ``scores.json`` content.
         """
         from panoptic_bench.evaluation.output import write_scores
+        from panoptic_bench.evaluation.per_scan import FILE, write_per_scan
 
+        extra: dict = {}
+        if self.per_scan:
+            write_per_scan(Path(out_dir) / FILE, self.per_scan_counts())
+            if bootstrap:
+                from panoptic_bench.metrics.bootstrap import bootstrap as run_bootstrap
+
+                got = run_bootstrap(
+                    self.per_scan, sk.LABELS.thing_ids, sk.LABELS.stuff_ids, n_boot=bootstrap
+                )
+                extra["bootstrap"] = got.to_dict()
         return write_scores(
             out_dir,
             self.result(),
@@ -261,6 +285,7 @@ class SemanticKittiEvaluation:
                 "sequences": list(self.sequences),
                 "n_scans": self.n_scans,
                 "min_inst_points": self.min_points,
+                **extra,
             },
         )
 
@@ -323,6 +348,7 @@ def evaluate_semantickitti(
     C, ignore = sk.LABELS.num_classes, sk.LABELS.ignore_ids
     stats = PanopticStats.zeros(C, ignore)
     ranges = None if edges is None else RangeStats.zeros(edges, C, ignore)
+    per_scan: list[PanopticStats] = []
     bar = workers_module.progress_bar(len(jobs), "SemanticKITTI", "scan", progress)
     n_workers = workers_module.pool_size(workers, len(jobs))
     chunksize = max(1, len(jobs) // (8 * n_workers))
@@ -330,10 +356,12 @@ def evaluate_semantickitti(
         with workers_module.pool_map(_score, jobs, n_workers, chunksize) as results:
             for s, r in results:  # scan order: identical sums for any number of workers
                 stats = stats + s
+                per_scan.append(s)
                 if ranges is not None:
                     ranges = ranges + r
                 bar.update()
     finally:
         bar.close()
     seqs = tuple(sorted({r.sequence for r in refs}))
-    return SemanticKittiEvaluation(stats, ranges, len(jobs), seqs, min_points)
+    ids = tuple(f"{r.sequence}/{r.frame}" for r in refs)
+    return SemanticKittiEvaluation(stats, ranges, len(jobs), seqs, min_points, tuple(per_scan), ids)
