@@ -316,3 +316,53 @@ def test_corrupt_predictions_in_validate_nuscenes(name, corrupt, words, nus, cap
     argv = ["validate", "nuscenes", "--dataroot", nus["dataroot"], "--version", NU_VERSION,
             "--result-path", nus["res"], "--eval-set", "mini_val"]  # fmt: skip
     refused(argv, capsys, names=[named, words], inputs=[nus["root"]], watch=[nus["root"].parent])
+
+
+def _per_scan_pair(kw, capsys) -> tuple[Path, Path]:
+    from hostile_world import run
+
+    outs = []
+    for name in ("a", "b"):
+        out = kw["root"] / f"eval_{name}"
+        argv = ["eval", "semantickitti", "--dataset", kw["data"], "--predictions", kw["pred"],
+                "--sequences", "08", "--output", out]  # fmt: skip
+        assert run(argv, capsys)[0] == 0
+        outs.append(out)
+    return outs[0], outs[1]
+
+
+def _npz_edit(**change):
+    def edit(path: Path) -> None:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+        for key, fn in change.items():
+            if fn is None:
+                arrays.pop(key)
+            else:
+                arrays[key] = fn(arrays[key])
+        with open(path, "wb") as fh:
+            np.savez(fh, **arrays)
+
+    return edit
+
+
+PER_SCAN_CASES = {
+    "raw npy": (lambda p: np.save(open(p, "wb"), np.zeros(3)), "np.savez"),
+    "truncated": (lambda p: p.write_bytes(p.read_bytes()[:100]), "per_scan.npz"),
+    "missing tp": (_npz_edit(tp=None), "tp"),
+    "tp wrong shape": (_npz_edit(tp=lambda a: a[:, :5]), "shape"),
+    "negative fn": (_npz_edit(fn=lambda a: a - 1), "non-negative"),
+    "NaN iou_sum": (_npz_edit(iou_sum=lambda a: a * np.nan), "finite"),
+    "iou_sum above tp": (_npz_edit(iou_sum=lambda a: a + 5.0), "[0, tp]"),
+    "thing id 99": (_npz_edit(things=lambda a: a + 98), "outside"),
+}
+
+
+@pytest.mark.parametrize("case", PER_SCAN_CASES, ids=list(PER_SCAN_CASES))
+def test_corrupt_per_scan_counts_refused_by_compare(case, kw, capsys):
+    a, b = _per_scan_pair(kw, capsys)
+    corrupt, words = PER_SCAN_CASES[case]
+    corrupt(b / "per_scan.npz")
+    argv = ["eval", "compare", a, b, "--bootstrap", "20", "--output", kw["parent"] / "cmp"]
+    refused(argv, capsys, names=["per_scan.npz", words], inputs=[kw["root"]],
+            watch=[kw["root"].parent])  # fmt: skip

@@ -22,6 +22,7 @@ SIM_NUS = ["box-merge", "simulate-nuscenes", *NUS, "--output", "{out}/s.json"]
 CENTERS = ["centers", "simulate", "--dataset", "D", "--output", "{out}"]
 EVAL_K = ["eval", "semantickitti", "--dataset", "D", "--predictions", "P", "--output", "{out}"]
 EVAL_4D = ["eval", "semantickitti-4d", "--dataset", "D", "--predictions", "P", "--output", "{out}"]
+COMPARE = ["eval", "compare", "A", "B", "--output", "{out}"]
 EVAL_N = ["eval", "nuscenes", "--dataroot", "D", "--version", "v1.0-mini", "--result-path", "R",
           "--eval-set", "mini_val", "--output", "{out}"]  # fmt: skip
 LABELS = ["nuscenes", "make-labels", "--dataroot", "D", "--version", "v1.0-mini", "--out-dir",
@@ -71,6 +72,12 @@ CASES = [
     (EVAL_K, "--workers", "0"),
     (EVAL_K, "--min-inst-points", "-1"),
     *[(EVAL_K, "--by-range", v) for v in ("0,nan", "0,inf", "10,5", "5", "0,a")],
+    (EVAL_K, "--bootstrap", "-1"),
+    (EVAL_K, "--bootstrap", "1.5"),
+    (COMPARE, "--bootstrap", "0"),
+    (COMPARE, "--level", "1"),
+    (COMPARE, "--level", "nan"),
+    (COMPARE, "--seed", "-1"),
     (EVAL_4D, "--workers", "-2"),
     (EVAL_4D, "--by-range", "nan,1"),
     (EVAL_N, "--workers", "0"),
@@ -81,6 +88,8 @@ CASES = [
     (TRAIN, "--epochs", "-1"),
     (TRAIN, "--threads", "-1"),
     (TRAIN, "--device", "banana"),
+    (TRAIN, "--train-sequences", "00,00"),
+    (TRAIN, "--val-sequences", "x"),
     (ABLATE, "--steps", "-1"),
     (ABLATE, "--lr", "0"),
     (ABLATE, "--lr", "nan"),

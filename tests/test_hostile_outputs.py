@@ -49,6 +49,23 @@ def _eval(w, *extra):
             "--sequences", "08", "--output", w["out"], *extra]  # fmt: skip
 
 
+def _compare(w, *extra):
+    """``eval compare`` of two eval outputs made beside the watched parent."""
+    import contextlib
+    import io
+
+    from panoptic_bench.cli import main
+
+    runs = w["parent"].parent / "compare_inputs"
+    for name in ("a", "b"):
+        if not (runs / name / "per_scan.npz").is_file():
+            argv = [str(a) for a in _eval(w)[:-1]] + [str(runs / name)]
+            with contextlib.redirect_stdout(io.StringIO()):
+                assert main(argv) == 0
+    return ["eval", "compare", runs / "a", runs / "b", "--bootstrap", "50",
+            "--output", w["out"], *extra]  # fmt: skip
+
+
 def _merge(w, *extra):
     return ["box-merge", "semantickitti", "--dataset", w["data"], "--semantic", w["pred"],
             "--boxes", w["boxes"], "--output", w["out"], *extra]  # fmt: skip
@@ -124,6 +141,7 @@ def test_broken_last_scan_leaves_no_output(name, command, corrupt, kw, capsys):
 WRITERS = {
     "cluster": _cluster,
     "eval": _eval,
+    "eval compare": _compare,
     "box-merge": _merge,
     "centers": _centers,
     "simulate-boxes": _sim_boxes,
@@ -168,6 +186,7 @@ def test_output_inside_or_equal_to_an_input_refused(kw, capsys):
         (_cluster(kw)[:-2] + ["--output", kw["centers"]], "inside the input tree"),
         (_cluster(kw)[:-2] + ["--output", kw["centers"] / "sub"], "inside the input tree"),
         (_eval(kw)[:-2] + ["--output", kw["pred"] / "scores"], "inside the input tree"),
+        (_compare(kw)[:-2] + ["--output", _compare(kw)[2] / "cmp"], "inside the input tree"),
         (_remap(kw)[:-2] + ["--output", kw["data"] / "x"], "inside the input tree"),
         (["train", "--config", CONFIG, "--data", kw["data"], "--out", kw["data"]],
          "inside the input tree"),

@@ -108,6 +108,17 @@ def read_per_scan(path: str | Path) -> PerScan:
             raise InputError(f"{key} has shape {a[key].shape}, expected {shape}", path)
     if S == 0:
         raise InputError("holds no scans", path)
+    for key in ("tp", "fp", "fn", "confusion"):
+        if a[key].dtype.kind not in "iu" or (a[key] < 0).any():
+            raise InputError(f"{key} must hold non-negative integer counts", path)
+    iou = a["iou_sum"]
+    if iou.dtype.kind != "f" or not np.isfinite(iou).all():
+        raise InputError("iou_sum must hold finite floats", path)
+    if (iou < 0).any() or (iou > a["tp"] + 1e-9).any():
+        raise InputError("iou_sum must lie in [0, tp] (each matched IoU is at most 1)", path)
+    bad = [c for key in ("ignore", "things", "stuff") for c in a[key].tolist() if not 0 <= c < C]
+    if bad:
+        raise InputError(f"class ids {bad[:3]} outside [0, {C})", path)
     try:
         stats = tuple(
             PanopticStats(
