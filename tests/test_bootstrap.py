@@ -178,3 +178,31 @@ def test_compare_bad_inputs(tmp_path: Path, capsys):
     assert (
         main(["eval", "compare", str(tmp_path / "e1"), str(tmp_path / "e1"), "--level", "1"]) == 2
     )
+
+
+def test_sequence_unit_resamples_whole_sequences(tmp_path: Path, capsys):
+    from panoptic_bench.evaluation.per_scan import by_sequence
+
+    data, pred_a = _tree(tmp_path / "a", {"08": 4, "09": 3}, noise=0.3, seed=0)
+    _, pred_b = _tree(tmp_path / "b", {"08": 4, "09": 3}, noise=0.05, seed=0)
+    argv = _eval(
+        data, pred_a, tmp_path / "ea", "--bootstrap", "200", "--bootstrap-unit", "sequence"
+    )
+    assert main(argv) == 0
+    assert "200 bootstrap replicates of 2 sequences" in capsys.readouterr().out
+    boot = json.loads((tmp_path / "ea" / "scores.json").read_text())["bootstrap"]
+    assert boot["unit"] == "sequence" and boot["n_units"] == 2 and "places" in boot["caveat"]
+    per = read_per_scan(tmp_path / "ea")
+    seqs = by_sequence(per)
+    assert seqs.scans == ("08", "09")
+    by_hand = per.stats[4] + per.stats[5] + per.stats[6]
+    assert np.array_equal(seqs.stats[1].confusion, by_hand.confusion)
+    assert np.array_equal(seqs.stats[1].tp, by_hand.tp)
+    # with two sequences, a replicate holds 08 twice, 09 twice or one of each: few distinct values
+    assert main(_eval(tmp_path / "b" / "data", pred_b, tmp_path / "eb")) == 0
+    cmp = ["eval", "compare", str(tmp_path / "ea"), str(tmp_path / "eb"), "--unit", "sequence",
+           "--bootstrap", "200", "--output", str(tmp_path / "c")]  # fmt: skip
+    assert main(cmp) == 0
+    got = json.loads((tmp_path / "c" / "compare.json").read_text())
+    assert got["unit"] == "sequence" and got["n_units"] == 2
+    assert got["metrics"]["mIoU"]["low"] > 0

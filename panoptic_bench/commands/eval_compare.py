@@ -36,6 +36,13 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
         help="interval coverage (default 0.95)",
     )
     p.add_argument("--seed", type=ca.seed, default=0, help="resampling seed (default 0)")
+    p.add_argument(
+        "--unit",
+        choices=("scan", "sequence"),
+        default="scan",
+        help="what is resampled: scans (default) or whole sequences, i.e. places (the per-scan "
+        "counts summed per sequence; needs several sequences)",
+    )
     p.add_argument("--output", help="also write compare.json and compare.txt to this directory")
     ca.add_overwrite(p, "the --output directory")
     p.set_defaults(func=run_compare)
@@ -58,6 +65,7 @@ def run_compare(args: argparse.Namespace) -> int:
         level=args.level,
         seed=args.seed,
         names=inputs,
+        unit=args.unit,
     )
     result = {"a": str(args.a), "b": str(args.b), **got.to_dict()}
     table = comparison_table(result, names=inputs)

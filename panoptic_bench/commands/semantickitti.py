@@ -58,6 +58,12 @@ def add_parser(eval_subparsers: argparse._SubParsersAction) -> argparse.Argument
         "(scores.json key 'bootstrap'; 0 = off, the default); per_scan.npz is always written, "
         "see 'eval compare'",
     )
+    p.add_argument(
+        "--bootstrap-unit",
+        choices=("scan", "sequence"),
+        default="scan",
+        help="what --bootstrap resamples: scans (default) or whole sequences (places)",
+    )
     p.add_argument("--output", required=True, help="output directory (not inside the inputs)")
     ca.add_overwrite(p, "the --output directory")
     p.set_defaults(func=run_eval)
@@ -105,7 +111,7 @@ def run_eval(args: argparse.Namespace) -> int:
         by_range=args.by_range,
     )
     with output_tree(args.output, overwrite=args.overwrite, inputs=inputs) as tmp:
-        scores = ev.write(tmp, bootstrap=args.bootstrap)
+        scores = ev.write(tmp, bootstrap=args.bootstrap, unit=args.bootstrap_unit)
     print(f"{ev.n_scans} scans of sequences {', '.join(ev.sequences)} (values in %):")
     print(percent_table(scores))
     if "bootstrap" in scores:

@@ -140,7 +140,8 @@ def interval_table(boot: Mapping[str, Any]) -> str:
         for name, m in boot["metrics"].items()
     ]
     level = f"{100 * boot['level']:g} %"
-    head = f"{level} intervals, {boot['n_boot']} bootstrap replicates of {boot['n_scans']} scans "
+    unit = f"{boot['n_units']} {boot.get('unit', 'scan')}s"
+    head = f"{level} intervals, {boot['n_boot']} bootstrap replicates of {unit} "
     return head + f"({boot['caveat']}):\n" + _text_table(["", "value", "low", "high"], rows)
 
 
@@ -162,7 +163,7 @@ def comparison_table(cmp: Mapping[str, Any], names: Sequence[str] = ("A", "B")) 
     head = ["", "A", "B", "B - A", f"{level} interval", "P(B > A)"]
     intro = (
         f"A = {a}\nB = {b}\npaired bootstrap, {cmp['n_boot']} replicates of the same "
-        f"{cmp['n_scans']} scans ({cmp['caveat']}):\n"
+        f"{cmp['n_units']} {cmp.get('unit', 'scan')}s ({cmp['caveat']}):\n"
     )
     return intro + _text_table(head, rows)
 

@@ -37,7 +37,7 @@ KEYS = (
     "class_names",
 )
 
-__all__ = ["FILE", "PerScan", "compare", "read_per_scan", "write_per_scan"]
+__all__ = ["FILE", "PerScan", "by_sequence", "compare", "read_per_scan", "write_per_scan"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,24 @@ class PerScan:
     things: tuple[int, ...]
     stuff: tuple[int, ...]
     class_names: tuple[str, ...]
+
+
+def by_sequence(per: PerScan) -> PerScan:
+    """The counts summed per sequence (scan ids ``SEQ/FRAME`` -> ``SEQ``), in first-seen order."""
+    groups: dict[str, PanopticStats] = {}
+    for scan, st in zip(per.scans, per.stats):
+        seq = scan.split("/", 1)[0]
+        groups[seq] = groups[seq] + st if seq in groups else st
+    return PerScan(tuple(groups), tuple(groups.values()), per.things, per.stuff, per.class_names)
+
+
+def resample(per: PerScan, unit: str) -> PerScan:
+    """``per`` itself (``unit="scan"``) or :func:`by_sequence` (``"sequence"``)."""
+    if unit == "scan":
+        return per
+    if unit == "sequence":
+        return by_sequence(per)
+    raise ValueError(f"unit must be 'scan' or 'sequence', got {unit!r}")
 
 
 def write_per_scan(path: str | Path, per: PerScan) -> None:
@@ -150,8 +168,11 @@ def compare(
     level: float = 0.95,
     seed: int = 0,
     names: Sequence[str | Path] = ("A", "B"),
+    unit: str = "scan",
 ) -> PairedResult:
     """Paired bootstrap of ``b - a``; both must hold the same scans and classes.
+
+    ``unit="sequence"`` resamples whole sequences (the per-scan counts summed per sequence).
 
     Raises
     ------
@@ -170,7 +191,9 @@ def compare(
             "scans to compare them"
         )
     where = {s: i for i, s in enumerate(b.scans)}
-    b_stats = [b.stats[where[s]] for s in a.scans]
+    b = PerScan(a.scans, tuple(b.stats[where[s]] for s in a.scans), b.things, b.stuff,
+                b.class_names)  # fmt: skip
+    a, b = resample(a, unit), resample(b, unit)
     return paired_bootstrap(
-        a.stats, b_stats, a.things, a.stuff, n_boot=n_boot, level=level, seed=seed
+        a.stats, b.stats, a.things, a.stuff, n_boot=n_boot, level=level, seed=seed, unit=unit
     )

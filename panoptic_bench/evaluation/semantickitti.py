@@ -253,15 +253,16 @@ class SemanticKittiEvaluation:
             self.scan_ids, self.per_scan, labels.thing_ids, labels.stuff_ids, labels.class_names
         )
 
-    def write(self, out_dir: str | Path, bootstrap: int = 0) -> dict:
+    def write(self, out_dir: str | Path, bootstrap: int = 0, unit: str = "scan") -> dict:
         """Write ``scores.txt``, ``scores.json``, ``per_class.csv`` and ``per_scan.npz``.
 
-        ``bootstrap`` > 0 adds 95 % scan-level bootstrap intervals of the headline metrics to
-        ``scores.json`` (key ``bootstrap``; :mod:`panoptic_bench.metrics.bootstrap`, seed 0).
+        ``bootstrap`` > 0 adds 95 % bootstrap intervals of the headline metrics to ``scores.json``
+        (key ``bootstrap``; :mod:`panoptic_bench.metrics.bootstrap`, seed 0), resampling scans or
+        whole sequences (``unit``).
         Returns the ``scores.json`` content.
         """
         from panoptic_bench.evaluation.output import write_scores
-        from panoptic_bench.evaluation.per_scan import FILE, write_per_scan
+        from panoptic_bench.evaluation.per_scan import FILE, resample, write_per_scan
 
         extra: dict = {}
         if self.per_scan:
@@ -269,8 +270,10 @@ class SemanticKittiEvaluation:
             if bootstrap:
                 from panoptic_bench.metrics.bootstrap import bootstrap as run_bootstrap
 
+                units = resample(self.per_scan_counts(), unit).stats
+                labels = sk.LABELS
                 got = run_bootstrap(
-                    self.per_scan, sk.LABELS.thing_ids, sk.LABELS.stuff_ids, n_boot=bootstrap
+                    units, labels.thing_ids, labels.stuff_ids, n_boot=bootstrap, unit=unit
                 )
                 extra["bootstrap"] = got.to_dict()
         return write_scores(

@@ -12,9 +12,11 @@ A *paired* comparison of two prediction sets of the same scans uses the same ``W
 and reports the distribution of the difference ``B - A`` (the scan-to-scan variation that both
 share cancels out).
 
-Caveat (written into every output): the resampling unit is the scan. Consecutive scans of one
-sequence are correlated, so with few sequences the intervals are narrower than the uncertainty
-about new places; read them as a lower bound on the noise.
+The resampling unit is whatever one accumulator stands for: a scan, or (with the per-scan counts
+summed per sequence first, ``unit="sequence"``) a whole sequence. Caveat written into every
+output: consecutive scans of one sequence are correlated, so scan-level intervals are narrower
+than the uncertainty about new places (a lower bound on the noise); sequence-level intervals
+answer "another set of places like these", but are coarse with few sequences.
 """
 
 from __future__ import annotations
@@ -34,10 +36,16 @@ __all__ = [
     "resample_counts",
 ]
 
-CAVEAT = (
-    "scan-level bootstrap: scans of one sequence are correlated, so the interval is a lower "
-    "bound on the uncertainty about unseen places"
-)
+CAVEATS = {
+    "scan": (
+        "scan-level bootstrap: scans of one sequence are correlated, so the interval is a lower "
+        "bound on the uncertainty about unseen places"
+    ),
+    "sequence": (
+        "sequence-level bootstrap: whole sequences (places) are resampled; with few sequences "
+        "the interval is coarse"
+    ),
+}
 
 
 def resample_counts(n_scans: int, n_boot: int, seed: int = 0) -> np.ndarray:
@@ -104,7 +112,7 @@ class BootstrapResult:
     low, high : dict of str to float
         Percentile interval bounds at ``level``.
     level : float
-    n_boot, n_scans, seed : int
+    n_boot, n_units, seed : int
     """
 
     estimate: dict[str, float]
@@ -112,17 +120,18 @@ class BootstrapResult:
     high: dict[str, float]
     level: float
     n_boot: int
-    n_scans: int
+    n_units: int
     seed: int
+    unit: str = "scan"
 
     def to_dict(self) -> dict:
         return {
             "level": self.level,
             "n_boot": self.n_boot,
-            "n_scans": self.n_scans,
+            "n_units": self.n_units,
             "seed": self.seed,
-            "unit": "scan",
-            "caveat": CAVEAT,
+            "unit": self.unit,
+            "caveat": CAVEATS[self.unit],
             "metrics": {
                 k: {"estimate": v, "low": self.low[k], "high": self.high[k]}
                 for k, v in self.estimate.items()
@@ -137,6 +146,7 @@ def bootstrap(
     n_boot: int = 1000,
     level: float = 0.95,
     seed: int = 0,
+    unit: str = "scan",
 ) -> BootstrapResult:
     """Percentile bootstrap intervals of PQ, mIoU, ... over scans.
 
@@ -152,6 +162,8 @@ def bootstrap(
         Interval coverage in (0, 1).
     seed : int
         Seed of the resampling (results are deterministic per seed).
+    unit : {"scan", "sequence"}
+        What one accumulator of ``per_scan`` stands for (recorded in the result).
     """
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
@@ -167,6 +179,7 @@ def bootstrap(
         n_boot,
         len(per_scan),
         seed,
+        _unit(unit),
     )
 
 
@@ -183,7 +196,7 @@ class PairedResult:
     p_b_greater : dict of str to float
         Fraction of replicates where B scores strictly higher than A.
     level : float
-    n_boot, n_scans, seed : int
+    n_boot, n_units, seed : int
     """
 
     a: dict[str, float]
@@ -193,17 +206,18 @@ class PairedResult:
     p_b_greater: dict[str, float]
     level: float
     n_boot: int
-    n_scans: int
+    n_units: int
     seed: int
+    unit: str = "scan"
 
     def to_dict(self) -> dict:
         return {
             "level": self.level,
             "n_boot": self.n_boot,
-            "n_scans": self.n_scans,
+            "n_units": self.n_units,
             "seed": self.seed,
-            "unit": "scan",
-            "caveat": CAVEAT,
+            "unit": self.unit,
+            "caveat": CAVEATS[self.unit],
             "metrics": {
                 k: {
                     "a": self.a[k],
@@ -226,8 +240,12 @@ def paired_bootstrap(
     n_boot: int = 1000,
     level: float = 0.95,
     seed: int = 0,
+    unit: str = "scan",
 ) -> PairedResult:
-    """Paired bootstrap of two prediction sets scored on the same scans (same order)."""
+    """Paired bootstrap of two prediction sets scored on the same scans (same order).
+
+    ``unit`` as in :func:`bootstrap`.
+    """
     if len(per_scan_a) != len(per_scan_b):
         raise ValueError(f"A has {len(per_scan_a)} scans, B {len(per_scan_b)}")
     if not 0.0 < level < 1.0:
@@ -243,4 +261,10 @@ def paired_bootstrap(
         d = rb[k] - ra[k]
         low[k], high[k] = _interval(d, level)
         p[k] = float(np.mean(d > 0))
-    return PairedResult(a, b, low, high, p, level, n_boot, len(per_scan_a), seed)
+    return PairedResult(a, b, low, high, p, level, n_boot, len(per_scan_a), seed, _unit(unit))
+
+
+def _unit(unit: str) -> str:
+    if unit not in CAVEATS:
+        raise ValueError(f"unit must be one of {sorted(CAVEATS)}, got {unit!r}")
+    return unit
