@@ -206,3 +206,32 @@ def test_sequence_unit_resamples_whole_sequences(tmp_path: Path, capsys):
     got = json.loads((tmp_path / "c" / "compare.json").read_text())
     assert got["unit"] == "sequence" and got["n_units"] == 2
     assert got["metrics"]["mIoU"]["low"] > 0
+
+
+def test_report_shows_intervals_of_runs_with_per_scan_counts(tmp_path: Path):
+    import shutil
+
+    from panoptic_bench.metrics.bootstrap import bootstrap as boot
+    from panoptic_bench.reports.index import build_report
+
+    runs = Path(__file__).resolve().parents[1] / "reports/real-scans-heldout/runs"
+    with_counts = tmp_path / "dsnet"
+    shutil.copytree(runs / "real-dsnet", with_counts)
+    without = tmp_path / "bfs"
+    shutil.copytree(runs / "real-bfs", without)
+    (without / "per_scan.npz").unlink()
+    index = build_report([with_counts, without], tmp_path / "rep").read_text()
+    assert "## How sure: bootstrap intervals" in index
+    section = index.split("## How sure")[1].split("## Figures")[0]
+    rows = [line for line in section.splitlines() if line.startswith(f"| `{with_counts}`")]
+    assert len(rows) == 1 and "| scan | 10 |" in rows[0]  # two sequences: no sequence row
+    per = read_per_scan(with_counts)
+    b = boot(per.stats, per.things, per.stuff, n_boot=1000)
+    assert (
+        f"{100 * b.estimate['PQ']:.1f} [{100 * b.low['PQ']:.1f}, {100 * b.high['PQ']:.1f}]"
+        in rows[0]
+    )
+    assert f"| `{without}`" not in section
+    # no run with counts: no section
+    index = build_report([without], tmp_path / "rep2").read_text()
+    assert "How sure" not in index

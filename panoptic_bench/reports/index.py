@@ -44,6 +44,7 @@ from tqdm import tqdm
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import ensure_output_dir, write_text
 from panoptic_bench.reports import bev, figures
+from panoptic_bench.reports.intervals import interval_markdown
 from panoptic_bench.reports.render import to_markdown, write_table
 from panoptic_bench.reports.runs import ABLATION_KEYS, Run, load_runs
 from panoptic_bench.reports.tables import build_tables
@@ -244,8 +245,9 @@ def _index_markdown(runs, tables, jobs, command: str, results, viewers=()) -> st
         "```",
         "",
         "Numbers are read from each run's `scores.json` (written by `panoptic-bench eval`); the",
-        "report recomputes nothing. Rows marked **ours** were computed on the data named in their",
-        "Data column; rows marked paper are the published numbers of the DS-Net paper.",
+        "report recomputes nothing but the intervals (from `per_scan.npz`). Rows marked **ours**",
+        "were computed on the data named in their Data column; rows marked paper are the",
+        "published numbers of the DS-Net paper.",
         "",
         "## Runs",
         "",
@@ -262,6 +264,7 @@ def _index_markdown(runs, tables, jobs, command: str, results, viewers=()) -> st
     for table in tables:
         links = ", ".join(f"[{ext}](tables/{table.name}.{ext})" for ext in ("md", "csv", "tex"))
         lines += [to_markdown(table), f"Files: {links}; produced by `{command}`.", ""]
+    lines += interval_markdown(runs, [str(r) for r in results])
     lines += ["## Figures", ""]
     if not jobs:
         lines += ["No run provided figure inputs.", ""]
