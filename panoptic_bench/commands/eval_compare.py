@@ -78,9 +78,4 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Provide ``eval compare`` on its own unless ``commands/eval.py`` already owns ``eval``."""
-    if "eval" in subparsers.choices:
-        return
-    parser = subparsers.add_parser("eval", help="score predictions")
-    sub = parser.add_subparsers(dest="eval_target", metavar="TARGET", required=True)
-    add_parser(sub)
+    """Nothing to add at the top level: ``commands/eval.py`` calls :func:`add_parser`."""

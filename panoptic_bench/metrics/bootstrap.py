@@ -30,6 +30,7 @@ from panoptic_bench.metrics.accumulator import PanopticStats
 
 __all__ = [
     "BootstrapResult",
+    "Resampling",
     "PairedResult",
     "bootstrap",
     "paired_bootstrap",
@@ -102,27 +103,18 @@ def _interval(samples: np.ndarray, level: float) -> tuple[float, float]:
 
 
 @dataclass(frozen=True)
-class BootstrapResult:
-    """Point estimates and percentile intervals of the headline metrics.
+class Resampling:
+    """How the replicates were drawn: coverage, replicate count, units, seed and unit kind."""
 
-    Attributes
-    ----------
-    estimate : dict of str to float
-        The metrics of all scans (as :meth:`PanopticResult.summary`).
-    low, high : dict of str to float
-        Percentile interval bounds at ``level``.
-    level : float
-    n_boot, n_units, seed : int
-    """
-
-    estimate: dict[str, float]
-    low: dict[str, float]
-    high: dict[str, float]
     level: float
     n_boot: int
     n_units: int
     seed: int
     unit: str = "scan"
+
+    def __post_init__(self) -> None:
+        if self.unit not in CAVEATS:
+            raise ValueError(f"unit must be one of {sorted(CAVEATS)}, got {self.unit!r}")
 
     def to_dict(self) -> dict:
         return {
@@ -132,6 +124,30 @@ class BootstrapResult:
             "seed": self.seed,
             "unit": self.unit,
             "caveat": CAVEATS[self.unit],
+        }
+
+
+@dataclass(frozen=True)
+class BootstrapResult:
+    """Point estimates and percentile intervals of the headline metrics.
+
+    Attributes
+    ----------
+    estimate : dict of str to float
+        The metrics of all scans (as :meth:`PanopticResult.summary`).
+    low, high : dict of str to float
+        Percentile interval bounds at ``resampling.level``.
+    resampling : Resampling
+    """
+
+    estimate: dict[str, float]
+    low: dict[str, float]
+    high: dict[str, float]
+    resampling: Resampling
+
+    def to_dict(self) -> dict:
+        return {
+            **self.resampling.to_dict(),
             "metrics": {
                 k: {"estimate": v, "low": self.low[k], "high": self.high[k]}
                 for k, v in self.estimate.items()
@@ -175,11 +191,7 @@ def bootstrap(
         point,
         {k: b[0] for k, b in bounds.items()},
         {k: b[1] for k, b in bounds.items()},
-        level,
-        n_boot,
-        len(per_scan),
-        seed,
-        _unit(unit),
+        Resampling(level, n_boot, len(per_scan), seed, unit),
     )
 
 
@@ -195,8 +207,7 @@ class PairedResult:
         Percentile interval of the difference ``B - A``.
     p_b_greater : dict of str to float
         Fraction of replicates where B scores strictly higher than A.
-    level : float
-    n_boot, n_units, seed : int
+    resampling : Resampling
     """
 
     a: dict[str, float]
@@ -204,20 +215,11 @@ class PairedResult:
     low: dict[str, float]
     high: dict[str, float]
     p_b_greater: dict[str, float]
-    level: float
-    n_boot: int
-    n_units: int
-    seed: int
-    unit: str = "scan"
+    resampling: Resampling
 
     def to_dict(self) -> dict:
         return {
-            "level": self.level,
-            "n_boot": self.n_boot,
-            "n_units": self.n_units,
-            "seed": self.seed,
-            "unit": self.unit,
-            "caveat": CAVEATS[self.unit],
+            **self.resampling.to_dict(),
             "metrics": {
                 k: {
                     "a": self.a[k],
@@ -261,10 +263,4 @@ def paired_bootstrap(
         d = rb[k] - ra[k]
         low[k], high[k] = _interval(d, level)
         p[k] = float(np.mean(d > 0))
-    return PairedResult(a, b, low, high, p, level, n_boot, len(per_scan_a), seed, _unit(unit))
-
-
-def _unit(unit: str) -> str:
-    if unit not in CAVEATS:
-        raise ValueError(f"unit must be one of {sorted(CAVEATS)}, got {unit!r}")
-    return unit
+    return PairedResult(a, b, low, high, p, Resampling(level, n_boot, len(per_scan_a), seed, unit))
