@@ -41,6 +41,7 @@ from panoptic_bench.dsnet.checkpoint import (
 from panoptic_bench.dsnet.config import DSNetConfig, save_config
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, TrainingSet, open_dataset
 from panoptic_bench.dsnet.model.forward import backbone_forward
+from panoptic_bench.dsnet.training.resume import check_resumable
 from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import write_text
@@ -224,25 +225,6 @@ def _trainable(stage: str, backbone: nn.Module, shift: nn.Module | None, cfg: DS
     return params
 
 
-def _check_same_config(stored: DSNetConfig, cfg: DSNetConfig, path: Path) -> None:
-    """Resume only with the config the checkpoint was trained with (else: InputError)."""
-    a, b = stored.to_dict(), cfg.to_dict()
-    diff = [
-        f"{sec}.{key}: {a[sec].get(key)!r} in the checkpoint, {b[sec].get(key)!r} now"
-        for sec in sorted(set(a) | set(b))
-        for key in sorted(set(a.get(sec, {})) | set(b.get(sec, {})))
-        if a.get(sec, {}).get(key) != b.get(sec, {}).get(key)
-    ]
-    if diff:
-        raise InputError(
-            "cannot resume with a different config ("
-            + "; ".join(diff[:4])
-            + (f"; {len(diff) - 4} more" if len(diff) > 4 else "")
-            + "): give the run's config.yaml and the same options",
-            path,
-        )
-
-
 def run_stage(
     stage: str,
     ctx: TrainContext,
@@ -255,7 +237,7 @@ def run_stage(
     path = checkpoint_path(ctx.run_dir, stage)
     own = load_checkpoint(path) if resume and path.is_file() else None
     if own is not None:
-        _check_same_config(own.config, ctx.cfg, path)
+        check_resumable(own.config, ctx.cfg, path)
     backbone, shift = _build_networks(ctx, stage, own or _previous_checkpoint(ctx, stage, init))
     params = _trainable(stage, backbone, shift, ctx.cfg)
     optimizer = torch.optim.Adam(
