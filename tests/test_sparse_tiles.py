@@ -40,7 +40,7 @@ def tiles_everywhere(monkeypatch):
     """Every map with 2+ offsets through the tile path, small tiles and chunks, any thread count."""
     monkeypatch.setattr(gemm, "MIN_THREADS", 1)
     monkeypatch.setattr(tiles, "MIN_EFFICIENCY", 0.0)
-    monkeypatch.setattr(tiles, "worth_planning", lambda kmap, n_in, n_off, c_in: True)
+    monkeypatch.setattr(tiles, "worth_planning", lambda kmap, n_in, n_off, c_in, c_out: True)
     monkeypatch.setattr(tiles, "TILE_ROWS", 8)
     monkeypatch.setattr(tiles, "CHUNK_ROWS", 24)
 
@@ -124,11 +124,12 @@ def test_paths_are_chosen_by_width_map_kind_and_useful_fraction(monkeypatch):
     entry = downsample_map(x, (3, 3, 3), (2, 2, 2), (1, 1, 1))
     n = len(x)
     dense = gemm.density(sub, 27) >= tiles.MIN_DENSITY
-    assert tiles.worth_planning(sub, n, 27, tiles.MIN_CHANNELS) == dense
-    assert not tiles.worth_planning(sub, n, 27, tiles.MIN_CHANNELS - 1)  # narrow: pairs
-    assert not tiles.worth_planning(entry.kmap, n, 27, 512)  # strided: pairs
+    assert tiles.worth_planning(sub, n, 27, 128, 128) == dense
+    assert tiles.worth_planning(sub, n, 27, 64, 256) == dense  # the work per row counts
+    assert not tiles.worth_planning(sub, n, 27, 127, 128)  # narrow: pairs
+    assert not tiles.worth_planning(entry.kmap, n, 27, 512, 512)  # strided: pairs
     inverse = entry.kmap.transposed(n)
-    assert tiles.worth_planning(inverse, entry.kmap.n_out, 27, 512)
+    assert tiles.worth_planning(inverse, entry.kmap.n_out, 27, 512, 512)
     plan = tiles.TilePlan(*(torch.zeros(0, dtype=torch.long),) * 3, (), pairs=0)
     monkeypatch.setattr(tiles.TilePlan, "efficiency", property(lambda self: 0.9))
     assert tiles.plan_pays_off(plan)
@@ -223,6 +224,26 @@ def test_official_backbone_shortcuts_equal_straightforward(tiles_everywhere, kit
         assert float((a - b).abs().max()) <= 1e-4 * scale, key
     assert torch.equal(ref.sem_logits.argmax(1), got.sem_logits.argmax(1))
     assert got.voxel_logits.is_contiguous()
+
+
+def test_folded_mlp_in_blocks_equals_the_stack(monkeypatch):
+    """Rows run block by block (a last partial block too); norms at both ends, ReLU last."""
+    torch.manual_seed(4)
+    mlp = torch.nn.Sequential(
+        torch.nn.BatchNorm1d(6),
+        torch.nn.ReLU(),
+        torch.nn.Linear(6, 8),
+        torch.nn.ReLU(),
+        torch.nn.BatchNorm1d(8),
+    ).eval()
+    _randomise_norms(mlp, 3)
+    x = torch.randn(45, 6)
+    monkeypatch.setattr(fused, "MLP_BLOCK_ROWS", 16)
+    with torch.no_grad():
+        torch.testing.assert_close(fused.folded_mlp(mlp, x), mlp(x), atol=1e-5, rtol=1e-5)
+        relu_only = torch.nn.Sequential(torch.nn.ReLU()).eval()
+        torch.testing.assert_close(fused.folded_mlp(relu_only, x), torch.relu(x))
+    assert [r for _, _, r in fused.fold_mlp(mlp)] == [True, True, False]
 
 
 def test_folded_mlp_equals_the_stack():

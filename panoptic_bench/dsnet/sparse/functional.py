@@ -128,7 +128,7 @@ def apply_kernel_map(
     if gemm.fast_enabled(cache, features, weight):
         if tiles.use_tile_path(n_off, features.device):
             n_in = features.shape[0]
-            if tiles.worth_planning(kmap, n_in, n_off, features.shape[1]):
+            if tiles.worth_planning(kmap, n_in, n_off, *weight.shape[1:]):
                 plan = tiles.cached_plan(
                     cache, kmap, gemm.cached_table(cache, kmap, n_in, n_off), n_in
                 )

@@ -137,12 +137,73 @@ def merged_conv(x: SparseTensor, convs: list[SubMConv3d]) -> SparseTensor:
     return F.submanifold_conv3d(x, weight, kernel, bias)
 
 
+MLP_BLOCK_ROWS = 4096
+"""Rows per block of :func:`folded_mlp`: the whole stack runs on one block while its
+intermediate arrays stay in cache (the official point MLP, 124k points at 2 threads: 97 ms in
+blocks of 4096 rows against 204 ms layer by layer over all rows; 512-16384 all beat it)."""
+
+
+def fold_mlp(mlp: nn.Sequential) -> list[tuple[torch.Tensor, torch.Tensor, bool]]:
+    """An eval-mode ``Linear`` / ``BatchNorm1d`` / ``ReLU`` stack as ``(weight_t, bias, relu)`` steps.
+
+    Each BatchNorm becomes part of the adjacent Linear (``W diag(s)``, ``W t + b`` for a norm
+    before it, ``diag(s) W``, ``s b + t`` for one after it); a norm with no Linear after it
+    becomes an identity-weight step. A step is ``h @ weight_t + bias``, then ``relu_`` when
+    ``relu``.
+
+    Raises
+    ------
+    TypeError
+        For a layer that is none of the three.
+    """
+    steps: list[list] = []  # [weight_t, bias, relu]
+    pending: tuple[torch.Tensor, torch.Tensor] | None = None  # a norm before the next Linear
+    open_linear = False  # the last step is a Linear that a norm may still fold into
+
+    def close_pending() -> None:
+        nonlocal pending
+        if pending is not None:  # a norm with no Linear before it: diag(s) as a weight
+            steps.append([torch.diag(pending[0]), pending[1], False])
+            pending = None
+
+    for layer in mlp:
+        if isinstance(layer, nn.Linear):
+            weight = layer.weight
+            bias = layer.bias if layer.bias is not None else weight.new_zeros(weight.shape[0])
+            if pending is not None:
+                scale, shift = pending
+                bias = bias + weight @ shift
+                weight = weight * scale
+                pending = None
+            steps.append([weight.t(), bias, False])
+            open_linear = True
+        elif isinstance(layer, nn.BatchNorm1d):
+            scale, shift = norm_scale_shift(layer)
+            if open_linear:
+                weight_t, bias = steps[-1][0], steps[-1][1]
+                steps[-1][0], steps[-1][1] = weight_t * scale, bias * scale + shift
+            elif pending is None:
+                pending = (scale, shift)
+            else:
+                pending = (pending[0] * scale, pending[1] * scale + shift)
+        elif isinstance(layer, nn.ReLU):
+            close_pending()
+            if not steps:
+                steps.append([None, None, True])  # a ReLU first: no affine step before it
+            else:
+                steps[-1][2] = True
+            open_linear = False
+        else:
+            raise TypeError(f"cannot fold {type(layer).__name__} into a Linear")
+    close_pending()
+    return [(w, b, r) for w, b, r in steps]
+
+
 def folded_mlp(mlp: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
     """Run an eval-mode ``Linear`` / ``BatchNorm1d`` / ``ReLU`` stack with the norms folded.
 
-    Each BatchNorm becomes part of the adjacent Linear (``W diag(s)``, ``W t + b`` for a norm
-    before it, ``diag(s) W``, ``s b + t`` for one after it), so the stack runs as one
-    ``addmm`` per Linear and an in-place ``relu_``: no (n, C) array per norm.
+    The stack (:func:`fold_mlp`) runs as one ``addmm`` per Linear and an in-place ``relu_``, on
+    blocks of :data:`MLP_BLOCK_ROWS` rows: no (n, C) array per norm or per hidden layer.
 
     Parameters
     ----------
@@ -157,36 +218,16 @@ def folded_mlp(mlp: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
     torch.Tensor
         Array of shape (n, out_features): ``mlp(x)`` up to float round-off.
     """
-    pending: tuple[torch.Tensor, torch.Tensor] | None = None  # a norm before the next Linear
-    weight = bias = None  # the Linear being built, not applied yet
-
-    def flush(h: torch.Tensor) -> torch.Tensor:
-        if weight is not None:
-            return torch.addmm(bias, h, weight.t())
-        return h if pending is None else h * pending[0] + pending[1]
-
-    for layer in mlp:
-        if isinstance(layer, nn.Linear):
-            x = x if weight is None else flush(x)  # a pending norm folds into this Linear
-            weight = layer.weight
-            bias = layer.bias if layer.bias is not None else weight.new_zeros(weight.shape[0])
-            if pending is not None:
-                scale, shift = pending
-                bias = bias + weight @ shift
-                weight = weight * scale
-                pending = None
-        elif isinstance(layer, nn.BatchNorm1d):
-            scale, shift = norm_scale_shift(layer)
-            if weight is not None:
-                weight, bias = weight * scale[:, None], bias * scale + shift
-            elif pending is None:
-                pending = (scale, shift)
-            else:
-                pending = (pending[0] * scale, pending[1] * scale + shift)
-        elif isinstance(layer, nn.ReLU):
-            h = flush(x)
-            x = torch.relu_(h) if h is not x else torch.relu(h)  # never the caller's array
-            weight = bias = pending = None
-        else:
-            raise TypeError(f"cannot fold {type(layer).__name__} into a Linear")
-    return flush(x)
+    steps = fold_mlp(mlp)
+    if not steps:
+        return x
+    width = next((w.shape[1] for w, _, _ in reversed(steps) if w is not None), x.shape[1])
+    out = x.new_empty((x.shape[0], width))
+    for a in range(0, x.shape[0], MLP_BLOCK_ROWS):
+        h = x[a : a + MLP_BLOCK_ROWS]
+        for weight_t, bias, relu in steps:
+            h = torch.relu(h) if weight_t is None else torch.addmm(bias, h, weight_t)
+            if relu and weight_t is not None:
+                torch.relu_(h)
+        out[a : a + MLP_BLOCK_ROWS] = h
+    return out

@@ -1,12 +1,15 @@
 """Kernel maps: which input site feeds which output site through which kernel offset.
 
-Sites are found by integer-key sort + ``searchsorted`` (no hash table, no compiled extension).
+Sites are found by integer-key sort + ``searchsorted`` (no hash table, no compiled extension),
+or, on the CPU for grids up to :data:`~panoptic_bench.dsnet.sparse.kmap_dense.MAX_CELLS` cells,
+through a dense site-index volume (:mod:`~panoptic_bench.dsnet.sparse.kmap_dense`, same maps).
 Maps are cached in the tensor's shared ``cache`` dict:
 
 - ``("sorted", stride)``: sorted site keys and the permutation that sorts them;
 - ``("offset", stride, delta)``: (in, out) pairs of one submanifold offset, shared by every
   kernel shape that contains the offset (a 1x3x3 and a 3x3x3 kernel reuse the same lookups) and
   swapped for the opposite offset;
+- ``("dense", stride)``: the site-index volume of the dense path;
 - ``("subm", stride, kernel)``: the submanifold :class:`KernelMap`;
 - ``("down", stride, kernel, conv_stride, padding)``: the strided convolution's output sites and
   map, which the inverse convolution reuses to go back up.
@@ -17,8 +20,10 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
+from panoptic_bench.dsnet.sparse import kmap_dense
 from panoptic_bench.dsnet.sparse.tensor import Shape3, SparseTensor, decode_keys, encode_keys
 
 
@@ -103,8 +108,12 @@ def _offset_pairs(x: SparseTensor, delta: tuple[int, int, int]) -> tuple[torch.T
         return entry[1], entry[2]
     neg = ("offset", x.stride, tuple(-d for d in delta))
     other = x.cache.get(neg)
+    volume = None if other is not None and other[0] is x.coords else _dense_volume(x)
     if other is not None and other[0] is x.coords:
         pairs = (other[2], other[1])
+    elif volume is not None:
+        i, o = kmap_dense.offset_pairs(x.coords.numpy(), volume, x.spatial_shape, delta)
+        pairs = (torch.from_numpy(i), torch.from_numpy(o))
     else:
         shift = torch.tensor((0, *delta), dtype=torch.int32, device=x.coords.device)
         query = x.coords + shift
@@ -142,6 +151,24 @@ def submanifold_map(x: SparseTensor, kernel_size: Shape3) -> KernelMap:
     return kmap
 
 
+def _dense_volume(x: SparseTensor):
+    """The site-index volume of ``x``'s sites (cached), or None off the dense path."""
+    key = ("dense", x.stride)
+    entry = x.cache.get(key)
+    if entry is not None and entry[0] is x.coords:
+        return entry[1]
+    batch = x.batch_size()
+    if not kmap_dense.usable(x.coords, batch, x.spatial_shape):
+        return None
+    coords = x.coords.numpy()
+    if coords.dtype != np.int32 or not coords.flags.c_contiguous:
+        return None
+    volume = kmap_dense.index_volume(coords, batch, x.spatial_shape)
+    if entry is None:
+        x.cache[key] = (x.coords, volume)
+    return volume
+
+
 def _concat_map(ins, outs, splits, identity, n_out, device) -> KernelMap:
     if ins:
         in_idx, out_idx = torch.cat(ins), torch.cat(outs)
@@ -173,6 +200,35 @@ def downsample_map(
     out_shape = output_shape(x.spatial_shape, kernel_size, stride, padding)
     if min(out_shape) < 1:
         raise ValueError(f"grid {x.spatial_shape} too small for kernel {kernel_size}")
+    batch = x.batch_size()
+    out_stride = tuple(a * b for a, b in zip(x.stride, stride))
+    coords = x.coords.numpy() if x.coords.device.type == "cpu" else None
+    if (
+        kmap_dense.usable(x.coords, batch, out_shape)
+        and coords.dtype == np.int32
+        and coords.flags.c_contiguous
+    ):
+        uniq_np, rows, inverse_np, splits, volume = kmap_dense.strided_map(
+            coords, batch, kernel_offsets(kernel_size), stride, padding, out_shape
+        )
+        uniq = torch.from_numpy(uniq_np)
+        out_coords = decode_keys(uniq, out_shape)
+        kmap = KernelMap(
+            torch.from_numpy(rows), torch.from_numpy(inverse_np), tuple(splits), None, len(uniq)
+        )
+        x.cache.setdefault(("dense", out_stride), (out_coords, volume))
+    else:
+        uniq, out_coords, kmap = _strided_sorted(x, kernel_size, stride, padding, out_shape)
+    entry = DownsampleEntry(x.coords, x.spatial_shape, out_coords, out_shape, kmap)
+    x.cache.setdefault(key, entry)
+    order = torch.arange(uniq.numel(), device=device)
+    x.cache.setdefault(("sorted", out_stride), (out_coords, uniq, order))
+    return entry
+
+
+def _strided_sorted(x, kernel_size, stride, padding, out_shape):
+    """Output keys (sorted), coords and map of a strided conv through key sort + unique."""
+    device = x.coords.device
     s = torch.tensor(stride, dtype=torch.int32, device=device)
     bound = torch.tensor(out_shape, dtype=torch.int32, device=device)
     base = x.coords[:, 1:] + torch.tensor(padding, dtype=torch.int32, device=device)
@@ -193,12 +249,7 @@ def downsample_map(
     for c in counts:
         splits.append(splits[-1] + c)
     kmap = KernelMap(torch.cat(all_in), inverse, tuple(splits), None, uniq.numel())
-    entry = DownsampleEntry(x.coords, x.spatial_shape, out_coords, out_shape, kmap)
-    x.cache.setdefault(key, entry)
-    out_stride = tuple(a * b for a, b in zip(x.stride, stride))
-    order = torch.arange(uniq.numel(), device=device)
-    x.cache.setdefault(("sorted", out_stride), (out_coords, uniq, order))
-    return entry
+    return uniq, out_coords, kmap
 
 
 def find_downsample(

@@ -37,13 +37,17 @@ CHUNK_ROWS = 512
 """Longest GEMM in rows: longer segments are chunked (``torch.mm`` at 2 threads ran 110-130
 GFLOP/s with 256-1024 rows, 80-100 with 4096, for the widths of the official network)."""
 
-MIN_EFFICIENCY = 0.65
+MIN_EFFICIENCY = 0.85
 """Smallest fraction of useful slots (pairs / gathered slots) routed to this path; less
-efficient maps go to :mod:`~panoptic_bench.dsnet.sparse.pairs`."""
+efficient maps go to :mod:`~panoptic_bench.dsnet.sparse.pairs`. Per layer at 2 threads
+(official network, real scan, two sessions on different machines), the three deep 3x3x3 convs
+with 0.70-0.81 useful slots ran 10-20 % faster on the pair path (0.13-0.15 s per frame); the
+1x3x3 / 3x1x3 maps (0.89-0.93) are faster here."""
 
-MIN_CHANNELS = 128
-"""Narrower convs go to the pair path (small GEMMs: per layer at 2 threads on the official
-network, the pair path was as fast or faster on every 16-64 channel layer)."""
+MIN_ROW_WORK = 128 * 128
+"""Smallest ``in_channels * out_channels`` planned: narrower convs go to the pair path (per
+layer at 2 threads on the official network, the pair path was as fast or faster on every
+16-64 channel layer with 32-128 outputs; the 64 -> 256 merged conv ran 1.5x faster here)."""
 
 MIN_DENSITY = 0.4
 """Submanifold maps sparser than this are not planned (their tiles keep too many zero slots:
@@ -61,9 +65,11 @@ def use_tile_path(n_offsets: int, device: torch.device) -> bool:
     return 2 <= n_offsets <= MAX_OFFSETS
 
 
-def worth_planning(kmap: KernelMap, n_in: int, n_offsets: int, in_channels: int) -> bool:
-    """Whether to build a plan for a conv (see :data:`MIN_CHANNELS`, :data:`MIN_DENSITY`)."""
-    if in_channels < MIN_CHANNELS:
+def worth_planning(
+    kmap: KernelMap, n_in: int, n_offsets: int, in_channels: int, out_channels: int
+) -> bool:
+    """Whether to build a plan for a conv (see :data:`MIN_ROW_WORK`, :data:`MIN_DENSITY`)."""
+    if in_channels * out_channels < MIN_ROW_WORK:
         return False
     if kmap.identity is None:
         return kmap.n_out > n_in  # inverse maps only
