@@ -124,3 +124,22 @@ def test_real_scan_maps_equal(monkeypatch):
     )
     assert torch.equal(dense.out_coords, ref.out_coords)
     assert_same_map(dense.kmap, ref.kmap)
+
+
+def test_sites_outside_the_grid_take_the_sorted_path(monkeypatch):
+    """A site outside the grid (or a negative batch index) never indexes the volume."""
+    x = random_tensor(6)
+    coords = x.coords.clone()
+    coords[0, 1] = SHAPE[0]  # one past the end
+    coords[1, 0] = -1
+    bad = SparseTensor(x.features, coords, SHAPE)
+    dense, ref = both(lambda t: kmap.submanifold_map(t, (3, 3, 3)), bad, monkeypatch)
+    assert_same_map(dense, ref)
+    fresh = SparseTensor(x.features, coords, SHAPE)
+    kmap.submanifold_map(fresh, (3, 3, 3))
+    assert fresh.cache[("dense", (1, 1, 1))][1] is None  # refused once, remembered
+    down, ref = both(
+        lambda t: kmap.downsample_map(t, (3, 3, 3), (2, 2, 2), (1, 1, 1)), bad, monkeypatch
+    )
+    assert torch.equal(down.out_coords, ref.out_coords)
+    assert_same_map(down.kmap, ref.kmap)

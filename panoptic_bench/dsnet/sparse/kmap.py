@@ -202,15 +202,15 @@ def downsample_map(
         raise ValueError(f"grid {x.spatial_shape} too small for kernel {kernel_size}")
     batch = x.batch_size()
     out_stride = tuple(a * b for a, b in zip(x.stride, stride))
-    coords = x.coords.numpy() if x.coords.device.type == "cpu" else None
-    if (
-        kmap_dense.usable(x.coords, batch, out_shape)
-        and coords.dtype == np.int32
-        and coords.flags.c_contiguous
-    ):
-        uniq_np, rows, inverse_np, splits, volume = kmap_dense.strided_map(
-            coords, batch, kernel_offsets(kernel_size), stride, padding, out_shape
-        )
+    dense = None
+    if kmap_dense.usable(x.coords, batch, out_shape):
+        coords = x.coords.numpy()
+        if coords.dtype == np.int32 and coords.flags.c_contiguous:
+            dense = kmap_dense.strided_map(
+                coords, batch, kernel_offsets(kernel_size), stride, padding, out_shape
+            )
+    if dense is not None:
+        uniq_np, rows, inverse_np, splits, volume = dense
         uniq = torch.from_numpy(uniq_np)
         out_coords = decode_keys(uniq, out_shape)
         kmap = KernelMap(
