@@ -141,6 +141,8 @@ def test_output_order_groups_pairs_by_site():
     assert indptr[0] == 0 and indptr[-1] == len(out_idx) == len(order)
     for o in range(kmap.n_out):
         assert np.all(out_idx[order[indptr[o] : indptr[o + 1]]] == o)
+    np.testing.assert_array_equal(order, np.argsort(out_idx, kind="stable"))  # stable, exactly
+    assert np.array_equal(np.diff(indptr), np.bincount(out_idx, minlength=kmap.n_out))
 
 
 def test_gradients_and_one_thread_keep_the_per_offset_path(monkeypatch):
