@@ -280,3 +280,26 @@ def test_pair_path_pads_odd_widths(c_out):
     got = pairs.pair_conv(x.features, w, kmap, pairs.output_order(kmap), b, {})
     assert got.shape == (len(x), c_out)
     torch.testing.assert_close(got, apply_kernel_map(x.features, w, kmap, b), atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("share", [0.0, 0.34, 1.0])
+def test_pair_path_in_offset_groups_is_bit_identical(share, monkeypatch):
+    """Offsets in groups that fit the product budget: the same sums in the same order."""
+    x = random_tensor(14, 5)
+    kmap = submanifold_map(x, (3, 3, 3))
+    g = torch.Generator().manual_seed(15)
+    w, b = torch.randn(27, 5, 7, generator=g), torch.randn(7, generator=g)
+    whole = pairs.pair_conv(x.features, w, kmap, pairs.output_order(kmap), b, {})
+    monkeypatch.setattr(pairs, "PRODUCT_BUDGET", max(1, int(share * kmap.in_idx.numel() * 7)))
+    groups = pairs.offset_groups(kmap.splits, 27, 7)
+    assert groups[0][0] == 0 and groups[-1][1] == 27
+    assert all(a[1] == b_[0] for a, b_ in zip(groups, groups[1:]))  # consecutive, all offsets
+    low, high = {0.0: (27, 27), 0.34: (3, 4), 1.0: (1, 1)}[share]  # one offset each ... one group
+    assert low <= len(groups) <= high
+    cache: dict = {}
+    got = pairs.pair_conv(x.features, w, kmap, pairs.output_order(kmap), b, cache)
+    assert torch.equal(got, whole)
+    again = pairs.pair_conv(
+        x.features, w, kmap, pairs.output_order(kmap), b, cache
+    )  # cached orders
+    assert torch.equal(again, whole)

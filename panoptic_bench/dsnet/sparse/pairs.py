@@ -75,6 +75,42 @@ PAD_COLUMNS = 32
 per-offset GEMMs of the merged heads ran 1.3x faster, 2 threads)."""
 
 
+PRODUCT_BUDGET = 1 << 24
+"""Most products held at once, in values (64 MB of float32). A map with more (the deep 3x3x3
+convs of the official network: up to 0.2 GB) runs its offsets in consecutive groups, each summed
+into the output before the next: per output site the same additions in the same order (offset
+by offset), so the result is bit-identical; only the peak memory drops."""
+
+
+def offset_groups(splits: tuple[int, ...], n_offsets: int, width: int) -> list[tuple[int, int]]:
+    """Consecutive offset ranges ``(k0, k1)`` whose products fit :data:`PRODUCT_BUDGET`.
+
+    A single offset larger than the budget is a group of its own.
+    """
+    groups, k0, acc = [], 0, 0
+    for k in range(n_offsets):
+        n = splits[k + 1] - splits[k]
+        if k > k0 and (acc + n) * width > PRODUCT_BUDGET:
+            groups.append((k0, k))
+            k0, acc = k, 0
+        acc += n
+    groups.append((k0, n_offsets))
+    return groups
+
+
+def _group_order(cache: dict | None, kmap: KernelMap, g0: int, g1: int):
+    """:func:`output_order` of the pairs ``g0:g1`` (indices relative to ``g0``), cached."""
+    key = ("pair_group_order", id(kmap.in_idx), id(kmap.out_idx), kmap.n_out, g0, g1)
+    entry = None if cache is None else cache.get(key)
+    if entry is not None and entry[0] is kmap.in_idx and entry[1] is kmap.out_idx:
+        return entry[2]
+    out_idx = np.ascontiguousarray(kmap.out_idx[g0:g1].cpu().numpy(), dtype=np.int64)
+    got = _counting_order(out_idx, kmap.n_out)
+    if cache is not None:
+        cache[key] = (kmap.in_idx, kmap.out_idx, got)
+    return got
+
+
 def workspace(cache: dict | None, name: str, numel: int, like: torch.Tensor) -> torch.Tensor:
     """A scratch array of ``numel`` elements (``like``'s dtype and device), kept in ``cache``.
 
@@ -133,15 +169,20 @@ def pair_conv(
         out = features @ weight[kmap.identity]
     else:
         out = features.new_zeros((kmap.n_out, c_out))
-    n_pairs, c_in = kmap.in_idx.numel(), weight.shape[1]
-    products = workspace(cache, "products", n_pairs * c_out, features).view(n_pairs, c_out)
-    most = max((kmap.splits[k + 1] - kmap.splits[k] for k in range(weight.shape[0])), default=0)
+    c_in, splits = weight.shape[1], kmap.splits
+    groups = offset_groups(splits, weight.shape[0], c_out)
+    most_pairs = max(splits[k1] - splits[k0] for k0, k1 in groups)
+    products = workspace(cache, "products", most_pairs * c_out, features).view(-1, c_out)
+    most = max((splits[k + 1] - splits[k] for k in range(weight.shape[0])), default=0)
     rows = workspace(cache, "rows", most * c_in, features).view(most, c_in)
-    for k in range(weight.shape[0]):
-        s, e = kmap.splits[k], kmap.splits[k + 1]
-        if e > s:
-            torch.index_select(features, 0, kmap.in_idx[s:e], out=rows[: e - s])
-            torch.mm(rows[: e - s], weight[k], out=products[s:e])
-    if products.shape[0]:
-        _gather_sum(out.numpy(), products.numpy(), *order)
+    for k0, k1 in groups:
+        g0, g1 = splits[k0], splits[k1]
+        for k in range(k0, k1):
+            s, e = splits[k], splits[k + 1]
+            if e > s:
+                torch.index_select(features, 0, kmap.in_idx[s:e], out=rows[: e - s])
+                torch.mm(rows[: e - s], weight[k], out=products[s - g0 : e - g0])
+        if g1 > g0:
+            part = order if len(groups) == 1 else _group_order(cache, kmap, g0, g1)
+            _gather_sum(out.numpy(), products[: g1 - g0].numpy(), *part)
     return out if bias is None else out + bias
