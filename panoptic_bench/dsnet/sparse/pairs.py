@@ -6,8 +6,8 @@ mostly zero rows. Here each offset's products go into one buffer of shape (n_pai
 (one multi-threaded ``torch.mm`` per offset, no wasted rows), and a parallel numba loop over the
 output sites adds each site's products (pairs sorted by output site once per map) in place of the
 single-threaded ``index_add_``; maps with more products than :data:`PRODUCT_BUDGET` run their
-offsets in groups, summed one group after the other (bit-identical). CPU only; results equal the per-offset path up to float
-round-off.
+offsets in groups, summed one group after the other (bit-identical). CPU only; results equal the
+per-offset path up to float round-off.
 """
 
 from __future__ import annotations
