@@ -147,8 +147,8 @@ def fold_mlp(mlp: nn.Sequential) -> list[tuple[torch.Tensor, torch.Tensor, bool]
     """An eval-mode ``Linear`` / ``BatchNorm1d`` / ``ReLU`` stack as ``(weight_t, bias, relu)`` steps.
 
     Each BatchNorm becomes part of the adjacent Linear (``W diag(s)``, ``W t + b`` for a norm
-    before it, ``diag(s) W``, ``s b + t`` for one after it); a norm with no Linear after it
-    becomes an identity-weight step. A step is ``h @ weight_t + bias``, then ``relu_`` when
+    before it, ``diag(s) W``, ``s b + t`` for one after it); a norm with no Linear next to it
+    becomes a step with the weight ``diag(s)``. A step is ``h @ weight_t + bias``, then ``relu_`` when
     ``relu``.
 
     Raises
