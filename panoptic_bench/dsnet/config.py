@@ -159,6 +159,11 @@ class AugmentConfig:
     ``mix_prob`` a training scan is mixed with another training scan (of another sequence where
     there is one): an azimuth sector U[``mix_sector_deg``] wide is swapped, then
     ``mix_paste_copies`` rotated copies of the partner's thing instances are pasted.
+    Instance pasting (off by default, :mod:`panoptic_bench.dsnet.data.bank`): with probability
+    ``paste_prob`` a training scan gets U{``paste_count``} instances of the classes named in
+    ``paste_classes`` (class-balanced, rotated about the sensor axis, placed on ground with free
+    space above), taken from the labelled root ``paste_bank`` (SemanticKITTI format, every
+    sequence; empty: the training scans themselves), instances of ``paste_min_points`` or more.
     """
 
     rotate: bool = True
@@ -174,6 +179,11 @@ class AugmentConfig:
     mix_prob: float = 0.0
     mix_sector_deg: tuple[float, float] = (90.0, 180.0)
     mix_paste_copies: int = 0
+    paste_prob: float = 0.0
+    paste_count: tuple[int, int] = (1, 4)
+    paste_classes: tuple[str, ...] = ()
+    paste_bank: str = ""
+    paste_min_points: int = 20
 
     def validate(self) -> list[str]:
         lo, hi = self.scale_range
@@ -197,6 +207,17 @@ class AugmentConfig:
             problems.append(f"augment.mix_sector_deg must be 0 <= lo <= hi <= 360, got {[lo, hi]}")
         if not 0 <= self.mix_paste_copies <= 16:
             problems.append("augment.mix_paste_copies must be in 0..16")
+        if not 0.0 <= self.paste_prob <= 1.0:
+            problems.append("augment.paste_prob must be in [0, 1]")
+        lo, hi = self.paste_count
+        if not 0 <= lo <= hi <= 32:
+            problems.append(f"augment.paste_count must be 0 <= lo <= hi <= 32, got {[lo, hi]}")
+        if self.paste_prob > 0 and not self.paste_classes:
+            problems.append(
+                "augment.paste_classes must name at least one class when paste_prob > 0"
+            )
+        if self.paste_min_points < 1:
+            problems.append("augment.paste_min_points must be >= 1")
         return problems
 
 

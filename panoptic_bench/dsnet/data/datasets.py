@@ -20,6 +20,7 @@ import numpy as np
 
 from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
 from panoptic_bench.dsnet.data.augment import augment_points, augment_remission, tilt_points
+from panoptic_bench.dsnet.data.bank import InstanceBank
 from panoptic_bench.dsnet.data.density import thin
 from panoptic_bench.dsnet.data.mix import mix_pair
 from panoptic_bench.errors import InputError
@@ -32,6 +33,7 @@ __all__ = [
     "SemanticKittiDataset",
     "TrainingSet",
     "collate",
+    "open_bank",
     "open_dataset",
 ]
 
@@ -280,6 +282,53 @@ def open_dataset(root: str | Path, data: DataConfig, which: str) -> LidarDataset
     return ds
 
 
+def open_bank(augment: AugmentConfig, train: LidarDataset) -> InstanceBank | None:
+    """The instance bank of ``augment.paste_*`` (None when pasting is off).
+
+    The classes are named in ``augment.paste_classes`` (class names of ``train``'s class map,
+    thing classes only); instances come from every sequence of the SemanticKITTI-format root
+    ``augment.paste_bank``, or from the training scans when it is empty.
+
+    Raises
+    ------
+    InputError
+        An unknown or non-thing class name, an unreadable or unlabelled bank root, a bank with
+        another class map, or no instance of the classes in the bank.
+    """
+    if augment.paste_prob <= 0:
+        return None
+    cmap = train.class_map
+    ids = []
+    for name in augment.paste_classes:
+        if name not in cmap.class_names:
+            raise InputError(
+                f"augment.paste_classes: unknown class {name!r}; classes: "
+                + ", ".join(cmap.class_names)
+            )
+        cid = cmap.class_names.index(name)
+        if cid not in cmap.thing_ids:
+            raise InputError(f"augment.paste_classes: {name!r} is not a thing class")
+        ids.append(cid)
+    if augment.paste_bank:
+        root = Path(augment.paste_bank)
+        if not root.is_dir():
+            raise InputError("augment.paste_bank: not a directory", root)
+        try:
+            source: LidarDataset = SemanticKittiDataset(root)
+        except InputError as err:
+            raise InputError(f"augment.paste_bank: {err}") from None
+        if len(source) == 0:
+            raise InputError("augment.paste_bank: no scans under sequences/*/velodyne", root)
+        if source.class_map.class_names != cmap.class_names:
+            raise InputError(
+                "augment.paste_bank: its class map differs from the training data's", root
+            )
+        name = str(root)
+    else:
+        source, name = train, "the training scans"
+    return InstanceBank.from_dataset(source, ids, augment.paste_min_points, source=name)
+
+
 class TrainingSet:
     """A :class:`LidarDataset` as a PyTorch map-style dataset of augmented numpy samples.
 
@@ -291,13 +340,25 @@ class TrainingSet:
     seed : int
         Base seed; the stream for sample ``i`` in epoch ``e`` is ``(seed, e, i)``; scene mixing
     (``augment.mix_prob`` > 0) draws from its own stream ``(seed, e, i, 1)``, so a config
-    without mixing gives exactly the samples it gave before mixing existed.
+    without mixing gives exactly the samples it gave before mixing existed; instance pasting
+    (``augment.paste_prob`` > 0, from ``bank``) draws from ``(seed, e, i, 2)``.
+    bank : InstanceBank, optional
+        Instances to paste; required when ``augment.paste_prob`` > 0.
     """
 
-    def __init__(self, dataset: LidarDataset, augment: AugmentConfig | None, seed: int = 0):
+    def __init__(
+        self,
+        dataset: LidarDataset,
+        augment: AugmentConfig | None,
+        seed: int = 0,
+        bank: InstanceBank | None = None,
+    ):
+        if augment is not None and augment.paste_prob > 0 and bank is None:
+            raise ValueError("augment.paste_prob > 0 needs an InstanceBank")
         self.dataset = dataset
         self.augment = augment
         self.seed = seed
+        self.bank = bank
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -323,12 +384,22 @@ class TrainingSet:
         partner = self.dataset.load(options[int(rng.integers(len(options)))])
         return mix_pair(sample, partner, rng, aug.mix_sector_deg, aug.mix_paste_copies)
 
+    def _pasted(self, sample: LidarSample, index: int) -> LidarSample:
+        aug = self.augment
+        rng = np.random.default_rng([self.seed, self.epoch, index, 2])
+        if rng.random() >= aug.paste_prob:
+            return sample
+        count = int(rng.integers(aug.paste_count[0], aug.paste_count[1] + 1))
+        return self.bank.paste(sample, rng, count)
+
     def __getitem__(self, index: int) -> LidarSample:
         sample = self.dataset.load(index)
         if self.augment is not None:
             aug = self.augment
             if aug.mix_prob > 0:
                 sample = self._mixed(sample, index)
+            if aug.paste_prob > 0:
+                sample = self._pasted(sample, index)
             rng = np.random.default_rng([self.seed, self.epoch, index])
             sample, _ = thin(sample, aug.max_points, rng)
             sample.xyz = augment_points(

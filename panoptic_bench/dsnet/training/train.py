@@ -39,7 +39,13 @@ from panoptic_bench.dsnet.checkpoint import (
     save_checkpoint,
 )
 from panoptic_bench.dsnet.config import DSNetConfig, save_config
-from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, TrainingSet, open_dataset
+from panoptic_bench.dsnet.data.datasets import (
+    ClassMap,
+    LidarDataset,
+    TrainingSet,
+    open_bank,
+    open_dataset,
+)
 from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.training.resume import check_resumable
 from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
@@ -154,7 +160,9 @@ def _make_context(
     return TrainContext(
         cfg=cfg,
         run_dir=run_dir,
-        train_set=TrainingSet(train_ds, cfg.augment, seed=cfg.optim.seed),
+        train_set=TrainingSet(
+            train_ds, cfg.augment, seed=cfg.optim.seed, bank=open_bank(cfg.augment, train_ds)
+        ),
         val_set=val_ds,
         class_map=cmap,
         class_weights=weights,
