@@ -330,3 +330,23 @@ def test_split_by_sequence_from_the_command_line(cfg: DSNetConfig, tmp_path: Pat
     argv = ["train", "--config", str(nus), "--data", str(world), "--out", str(tmp_path / "n")]
     assert cli([*argv, "--val-sequences", "08"]) == 2
     assert "need a SemanticKITTI config" in capsys.readouterr().err
+
+
+def test_training_with_instance_pasting_and_a_bad_bank(cfg: DSNetConfig, tmp_path: Path, capsys):
+    """augment.paste_*: a run pastes its own cars; a bank root that is not there is exit 2."""
+    world = write_tiny_world(tmp_path / "w", {"00": 3, "08": 1})
+    paste = {"paste_prob": 1.0, "paste_count": [2, 2], "paste_classes": ["car"]}
+    good = tmp_path / "paste.yaml"
+    save_config(cfg.replace(augment={**paste, "paste_min_points": 5}), good)
+    run = tmp_path / "run"
+    args = ["train", "--data", str(world), "--stage", "semantic", "--epochs", "1", "--no-progress"]
+    assert cli([*args, "--config", str(good), "--out", str(run)]) == 0
+    assert (run / "checkpoints" / "semantic.pt").exists()
+    bad = tmp_path / "bad.yaml"
+    missing = tmp_path / "no-bank"
+    save_config(cfg.replace(augment={**paste, "paste_bank": str(missing)}), bad)
+    capsys.readouterr()
+    assert cli([*args, "--config", str(bad), "--out", str(tmp_path / "bad_run")]) == 2
+    err = capsys.readouterr().err
+    assert "augment.paste_bank: not a directory" in err and str(missing) in err
+    assert "Traceback" not in err and not (tmp_path / "bad_run" / "checkpoints").exists()
