@@ -260,3 +260,36 @@ def test_verges_replace_sidewalks_by_terrain():
     lab, plan = labels(1.0)
     assert not (lab == SIDEWALK).any() and (lab == TERRAIN).any()
     assert plan.curb  # things are still placed at the kerb line
+
+
+def test_material_keys_change_only_the_remission_of_their_classes():
+    """rem_dark_other / rem_gain_*: same geometry and labels, only those classes' remission moves."""
+    mat = dataclasses.replace(
+        REALISTIC, rem_dark_other=(0.0,), rem_gain_people=2.0, rem_gain_pole=0.5, rem_gain_sign=0.5
+    )
+    # sequence 6 of seed 1 holds non-car vehicles, persons, poles and signs
+    base = Sequence(1, 6, 1, profile=REALISTIC)
+    new = Sequence(1, 6, 1, profile=mat)
+    a, b = base.frame(0).sweep, new.frame(0).sweep
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    np.testing.assert_array_equal(a.label, b.label)
+    np.testing.assert_array_equal(a.instance, b.instance)
+    others = ~np.isin(
+        a.label, (11, 13, 15, 18, 20, 30, 31, 32, 80, 81, 253, 254, 255, 257, 258, 259)
+    )
+    np.testing.assert_array_equal(a.remission[others], b.remission[others])
+    # the primitive gains: no non-car vehicle primitive is dark, people x 2, poles and signs x 0.5
+    labels = np.concatenate([base.scene.static.label, base.scene._local.label])
+    ga, gb = base.state.gain, new.state.gain
+    other_vehicle = np.isin(labels, (13, 15, 18, 20, 257, 258, 259))
+    assert other_vehicle.any()
+    dark = ga[other_vehicle] < gb[other_vehicle] / 5  # darkened x 0.1 in the realistic world only
+    assert dark.any() and np.allclose(gb[other_vehicle][~dark], ga[other_vehicle][~dark])
+    assert np.allclose(gb[other_vehicle][dark], 10 * ga[other_vehicle][dark], rtol=1e-6)
+    for ids, factor in [((30, 254), 2.0), ((80,), 0.5), ((81,), 0.5)]:
+        m = np.isin(labels, ids)
+        assert m.any() and np.allclose(gb[m], factor * ga[m], rtol=1e-6)
+    cars = np.isin(labels, (10, 252))
+    np.testing.assert_array_equal(ga[cars], gb[cars])
+    with pytest.raises(InputError, match="rem_dark_other"):
+        WorldProfile.from_dict({"rem_dark_other": [0.5, 0.5]}, base=REALISTIC)

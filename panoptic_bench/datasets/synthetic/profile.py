@@ -62,6 +62,11 @@ class WorldProfile:
       (``rem_material_spread``); ``rem_dark_prob`` of vehicle primitives (dark paint, glass) and
       ``rem_dark_stuff`` of the others are dark (x 0.1); far dark returns are kept (as 0)
       instead of dropped. Off: the classic constant x (0.7 + 0.3 cos).
+      ``rem_dark_other`` (one number, empty = ``rem_dark_prob``): the dark share of the
+      primitives of the vehicles that are not cars (truck, bus, other-vehicle, motorcycle; real
+      scans: 9-24 % zero returns on them against 56 % on cars); ``rem_gain_people`` (persons,
+      cyclists, bicycles), ``rem_gain_pole``, ``rem_gain_sign``: reflectivity factors of those
+      classes (real medians at 3-20 m: person 0.43, pole 0.23, traffic sign 0.39).
 
     Ground and world:
 
@@ -110,6 +115,10 @@ class WorldProfile:
     rem_dark_prob: float = 0.0
     rem_dark_stuff: float = 0.0
     rem_zero_below: float = 0.0
+    rem_dark_other: tuple[float, ...] = ()
+    rem_gain_people: float = 1.0
+    rem_gain_pole: float = 1.0
+    rem_gain_sign: float = 1.0
     ground_rough: float = 0.0
     ground_rough_corr: float = 0.0
     ground_wave: float = 0.0
@@ -160,6 +169,11 @@ class WorldProfile:
             "rem_dark_prob": 0.0 <= self.rem_dark_prob <= 1.0,
             "rem_dark_stuff": 0.0 <= self.rem_dark_stuff <= 1.0,
             "rem_zero_below": 0.0 <= self.rem_zero_below < 1.0,
+            "rem_dark_other": len(self.rem_dark_other) in (0, 1)
+            and all(0.0 <= v <= 1.0 for v in self.rem_dark_other),
+            "rem_gain_people": 0.0 < self.rem_gain_people <= 10.0,
+            "rem_gain_pole": 0.0 < self.rem_gain_pole <= 10.0,
+            "rem_gain_sign": 0.0 < self.rem_gain_sign <= 10.0,
             "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
             "range_noise": 0.0 <= self.range_noise <= 0.5,
@@ -248,6 +262,7 @@ _SENSOR_KEYS = (
     "height_shift", "pitch_deg", "roll_deg", "real_elevations", "low_ring_keep", "ego_box",
     "max_range", "range_noise", "physical_remission", "rem_incidence_exp", "rem_range_m",
     "rem_spread", "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below",
+    "rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign",
     "ground_rough", "ground_rough_corr", "ground_wave", "camber",
 )  # fmt: skip
 

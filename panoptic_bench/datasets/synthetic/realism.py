@@ -44,6 +44,17 @@ MEASURES: dict[str, tuple[str, str]] = {
     "rem_std": ("remission: standard deviation", "mean"),
     "rem_car_median": ("remission: car median", "median"),
     "rem_car_zero_pct": ("remission: % of car points exactly 0", "mean"),
+    "rem_other_vehicle_median": (
+        "remission: truck, bus, other-vehicle, motorcycle median (3-20 m)",
+        "median",
+    ),
+    "rem_other_vehicle_zero_pct": (
+        "remission: % of truck, bus, other-vehicle, motorcycle points exactly 0",
+        "mean",
+    ),
+    "rem_people_median": ("remission: person, cyclist, bicycle median (3-20 m)", "median"),
+    "rem_pole_median": ("remission: pole median (3-20 m)", "median"),
+    "rem_sign_median": ("remission: traffic-sign median (3-20 m)", "median"),
     "rem_road_lt5": ("remission: road median under 5 m", "median"),
     "rem_road_20_40": ("remission: road median at 20-40 m", "median"),
     "rem_road_gt40": ("remission: road median beyond 40 m", "median"),
@@ -84,6 +95,10 @@ ROAD, SIDEWALK, TERRAIN, CAR, BUILDING = 40, 48, 72, 10, 50
 CLUTTER = (52, 99)
 GROUND = (40, 44, 48, 49, 72)
 _MOVING_CAR = 252
+#: Raw ids of the non-car vehicles, of people and bicycles, of poles and of traffic signs.
+_OTHER_VEHICLES = (13, 15, 18, 20, 257, 258, 259)
+_PEOPLE = (11, 30, 31, 32, 253, 254, 255)
+_POLE, _SIGN = 80, 81
 
 
 def recover_rings(xyz: np.ndarray) -> np.ndarray:
@@ -201,6 +216,8 @@ def scan_measures(
     r = np.hypot(x, y)
     road, car = raw == ROAD, (raw == CAR) | (raw == _MOVING_CAR)
     dark = rem < 0.1
+    near = (r >= 3) & (r < 20)
+    other_vehicle = np.isin(raw, _OTHER_VEHICLES)
     m: dict[str, float] = {
         "rem_zero_pct": _pct(rem == 0),
         "rem_dark_pct": _pct(dark),
@@ -209,6 +226,11 @@ def scan_measures(
         "rem_std": float(rem.std()) if rem.size else float("nan"),
         "rem_car_median": _median(rem[car]),
         "rem_car_zero_pct": _pct(rem[car] == 0),
+        "rem_other_vehicle_median": _median(rem[other_vehicle & near]),
+        "rem_other_vehicle_zero_pct": _pct(rem[other_vehicle] == 0),
+        "rem_people_median": _median(rem[np.isin(raw, _PEOPLE) & near]),
+        "rem_pole_median": _median(rem[(raw == _POLE) & near]),
+        "rem_sign_median": _median(rem[(raw == _SIGN) & near]),
         "rem_road_lt5": _median(rem[road & (r < 5)]),
         "rem_road_20_40": _median(rem[road & (r >= 20) & (r < 40)]),
         "rem_road_gt40": _median(rem[road & (r >= 40)]),

@@ -25,6 +25,11 @@ __all__ = ["SensorState", "rough_field", "sensor_state", "sweep_realistic", "til
 
 #: Raw ids whose primitives are vehicle bodies / glass (dark paint is common).
 _VEHICLES = (10, 13, 15, 18, 20, 252, 257, 258, 259)
+#: The vehicles that are not cars (``rem_dark_other``).
+_OTHER_VEHICLES = (13, 15, 18, 20, 257, 258, 259)
+#: Raw ids scaled by ``rem_gain_people``, ``rem_gain_pole``, ``rem_gain_sign``.
+_PEOPLE = (11, 30, 31, 32, 253, 254, 255)
+_POLE, _SIGN = (80,), (81,)
 
 
 @dataclass(frozen=True)
@@ -80,7 +85,16 @@ def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) 
     gain = rng.lognormal(0.0, profile.rem_material_spread, labels.size)
     vehicle = np.isin(labels, _VEHICLES)
     p_dark = np.where(vehicle, profile.rem_dark_prob, profile.rem_dark_stuff)
+    if profile.rem_dark_other:
+        p_dark = np.where(np.isin(labels, _OTHER_VEHICLES), profile.rem_dark_other[0], p_dark)
     gain = np.where(rng.random(labels.size) < p_dark, 0.1 * gain, gain)
+    for ids, factor in (
+        (_PEOPLE, profile.rem_gain_people),
+        (_POLE, profile.rem_gain_pole),
+        (_SIGN, profile.rem_gain_sign),
+    ):
+        if factor != 1.0:
+            gain = np.where(np.isin(labels, ids), factor * gain, gain)
     rough = None
     if profile.ground_rough and profile.ground_rough_corr > 0:
         rough = rough_field(rng, profile.ground_rough, profile.ground_rough_corr)
