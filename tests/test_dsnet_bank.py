@@ -12,6 +12,7 @@ from panoptic_bench.dsnet.data.bank import (
     BankInstance,
     InstanceBank,
     footprint_mask,
+    open_bank,
     placement_ok,
     rotate_z,
 )
@@ -20,7 +21,6 @@ from panoptic_bench.dsnet.data.datasets import (
     LidarSample,
     SemanticKittiDataset,
     TrainingSet,
-    open_bank,
 )
 from panoptic_bench.errors import InputError
 

@@ -23,12 +23,20 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from panoptic_bench.errors import InputError
 
-__all__ = ["BankInstance", "InstanceBank", "footprint_mask", "placement_ok", "rotate_z"]
+__all__ = [
+    "BankInstance",
+    "InstanceBank",
+    "footprint_mask",
+    "open_bank",
+    "placement_ok",
+    "rotate_z",
+]
 
 # a placement needs this many scan points within the band around the copy's base, in its
 # footprint grown by SUPPORT_MARGIN (ground rings are ~0.5-1 m apart at 10-20 m)
@@ -236,3 +244,52 @@ class InstanceBank:
             inst=inst,
             key=sample.key,
         )
+
+
+def open_bank(augment, train) -> InstanceBank | None:
+    """The instance bank of ``augment.paste_*`` (None when pasting is off).
+
+    The classes are named in ``augment.paste_classes`` (class names of ``train``'s class map,
+    thing classes only); instances come from every sequence of the SemanticKITTI-format root
+    ``augment.paste_bank``, or from the training scans when it is empty.
+
+    Raises
+    ------
+    InputError
+        An unknown or non-thing class name, an unreadable or unlabelled bank root, a bank with
+        another class map, or no instance of the classes in the bank.
+    """
+    from panoptic_bench.dsnet.data.datasets import SemanticKittiDataset
+
+    if augment.paste_prob <= 0:
+        return None
+    cmap = train.class_map
+    ids = []
+    for name in augment.paste_classes:
+        if name not in cmap.class_names:
+            raise InputError(
+                f"augment.paste_classes: unknown class {name!r}; classes: "
+                + ", ".join(cmap.class_names)
+            )
+        cid = cmap.class_names.index(name)
+        if cid not in cmap.thing_ids:
+            raise InputError(f"augment.paste_classes: {name!r} is not a thing class")
+        ids.append(cid)
+    if augment.paste_bank:
+        root = Path(augment.paste_bank)
+        if not root.is_dir():
+            raise InputError("augment.paste_bank: not a directory", root)
+        try:
+            source = SemanticKittiDataset(root)
+        except InputError as err:
+            raise InputError(f"augment.paste_bank: {err}") from None
+        if len(source) == 0:
+            raise InputError("augment.paste_bank: no scans under sequences/*/velodyne", root)
+        if source.class_map.class_names != cmap.class_names:
+            raise InputError(
+                "augment.paste_bank: its class map differs from the training data's", root
+            )
+        name = str(root)
+    else:
+        source, name = train, "the training scans"
+    return InstanceBank.from_dataset(source, ids, augment.paste_min_points, source=name)

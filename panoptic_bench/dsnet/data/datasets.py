@@ -14,16 +14,18 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
 from panoptic_bench.dsnet.data.augment import augment_points, augment_remission, tilt_points
-from panoptic_bench.dsnet.data.bank import InstanceBank
 from panoptic_bench.dsnet.data.density import thin
 from panoptic_bench.dsnet.data.mix import mix_pair
 from panoptic_bench.errors import InputError
+
+if TYPE_CHECKING:
+    from panoptic_bench.dsnet.data.bank import InstanceBank
 
 __all__ = [
     "ClassMap",
@@ -33,7 +35,6 @@ __all__ = [
     "SemanticKittiDataset",
     "TrainingSet",
     "collate",
-    "open_bank",
     "open_dataset",
 ]
 
@@ -280,53 +281,6 @@ def open_dataset(root: str | Path, data: DataConfig, which: str) -> LidarDataset
     if len(ds) == 0:
         raise InputError(f"no samples in the {which} split ({split})", root)
     return ds
-
-
-def open_bank(augment: AugmentConfig, train: LidarDataset) -> InstanceBank | None:
-    """The instance bank of ``augment.paste_*`` (None when pasting is off).
-
-    The classes are named in ``augment.paste_classes`` (class names of ``train``'s class map,
-    thing classes only); instances come from every sequence of the SemanticKITTI-format root
-    ``augment.paste_bank``, or from the training scans when it is empty.
-
-    Raises
-    ------
-    InputError
-        An unknown or non-thing class name, an unreadable or unlabelled bank root, a bank with
-        another class map, or no instance of the classes in the bank.
-    """
-    if augment.paste_prob <= 0:
-        return None
-    cmap = train.class_map
-    ids = []
-    for name in augment.paste_classes:
-        if name not in cmap.class_names:
-            raise InputError(
-                f"augment.paste_classes: unknown class {name!r}; classes: "
-                + ", ".join(cmap.class_names)
-            )
-        cid = cmap.class_names.index(name)
-        if cid not in cmap.thing_ids:
-            raise InputError(f"augment.paste_classes: {name!r} is not a thing class")
-        ids.append(cid)
-    if augment.paste_bank:
-        root = Path(augment.paste_bank)
-        if not root.is_dir():
-            raise InputError("augment.paste_bank: not a directory", root)
-        try:
-            source: LidarDataset = SemanticKittiDataset(root)
-        except InputError as err:
-            raise InputError(f"augment.paste_bank: {err}") from None
-        if len(source) == 0:
-            raise InputError("augment.paste_bank: no scans under sequences/*/velodyne", root)
-        if source.class_map.class_names != cmap.class_names:
-            raise InputError(
-                "augment.paste_bank: its class map differs from the training data's", root
-            )
-        name = str(root)
-    else:
-        source, name = train, "the training scans"
-    return InstanceBank.from_dataset(source, ids, augment.paste_min_points, source=name)
 
 
 class TrainingSet:

@@ -21,6 +21,8 @@ import math
 
 import numpy as np
 
+from panoptic_bench.dsnet.data.bank import rotate_z
+
 __all__ = ["azimuth_in_sector", "mix_pair", "paste_instances", "swap_sector"]
 
 
@@ -113,9 +115,7 @@ def paste_instances(a, b, angles: np.ndarray):
     span = int(inst.max())
     offset = int(a.inst.max(initial=0))
     for angle in angles:
-        c, s = math.cos(float(angle)), math.sin(float(angle))
-        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], dtype=np.float64)
-        parts.append(((xyz @ rot.T).astype(np.float32), rem, sem, _offset_ids(inst, offset)))
+        parts.append((rotate_z(xyz, float(angle)), rem, sem, _offset_ids(inst, offset)))
         offset += span
     return _concat(parts, a.key)
 
