@@ -166,7 +166,7 @@ def test_bank_from_dataset_keeps_chosen_classes_and_min_points():
     bank = InstanceBank.from_dataset(_Scans(), [6], min_points=20)
     assert bank.counts() == {6: 2} and all(len(i.xyz) == 30 for i in bank.instances)
     assert InstanceBank.from_dataset(_Scans(), [1, 6], min_points=100).counts() == {1: 2}
-    with pytest.raises(InputError, match="no instance"):
+    with pytest.raises(InputError, match="no instance.*lower augment.paste_min_points"):
         InstanceBank.from_dataset(_Scans(n_person=5), [6], min_points=20)
 
 
@@ -207,7 +207,7 @@ def test_open_bank_errors_name_the_problem(tmp_path):
     assert open_bank(AugmentConfig(), ds) is None
     with pytest.raises(InputError, match="unknown class 'pedestrian'"):
         open_bank(_paste_cfg(paste_classes=("pedestrian",)), ds)
-    with pytest.raises(InputError, match="'c9' is not a thing class"):
+    with pytest.raises(InputError, match="'c9' is not a thing class; thing classes: c1, c6"):
         open_bank(_paste_cfg(paste_classes=("c9",)), ds)
     with pytest.raises(InputError, match="not a directory"):
         open_bank(_paste_cfg(paste_bank=str(tmp_path / "missing")), ds)

@@ -139,7 +139,12 @@ class InstanceBank:
 
     @classmethod
     def from_dataset(
-        cls, dataset, class_ids: Sequence[int], min_points: int = 20, source: str = "bank"
+        cls,
+        dataset,
+        class_ids: Sequence[int],
+        min_points: int = 20,
+        source: str = "bank",
+        progress: bool = False,
     ) -> InstanceBank:
         """Collect every instance of ``class_ids`` with at least ``min_points`` points.
 
@@ -152,6 +157,8 @@ class InstanceBank:
         min_points : int
         source : str
             Named in the error raised when no instance is found.
+        progress : bool
+            Show a progress bar over the scans.
 
         Raises
         ------
@@ -161,7 +168,9 @@ class InstanceBank:
         wanted = np.zeros(max(list(class_ids) + [0]) + 1, dtype=bool)
         wanted[list(class_ids)] = True
         found = []
-        for i in range(len(dataset)):
+        from tqdm import tqdm
+
+        for i in tqdm(range(len(dataset)), desc="instance bank", disable=not progress, leave=False):
             s = dataset.load(i)
             sel = (s.inst > 0) & (s.sem < len(wanted))
             sel[sel] = wanted[s.sem[sel]]
@@ -177,7 +186,9 @@ class InstanceBank:
                 )
         if not found:
             raise InputError(
-                f"no instance of train ids {sorted(class_ids)} with >= {min_points} points",
+                f"no instance of train ids {sorted(class_ids)} with >= {min_points} points; "
+                "name other classes in augment.paste_classes, lower augment.paste_min_points "
+                "or use another augment.paste_bank",
                 source,
             )
         return cls(found)
@@ -246,12 +257,13 @@ class InstanceBank:
         )
 
 
-def open_bank(augment, train) -> InstanceBank | None:
+def open_bank(augment, train, progress: bool = False) -> InstanceBank | None:
     """The instance bank of ``augment.paste_*`` (None when pasting is off).
 
     The classes are named in ``augment.paste_classes`` (class names of ``train``'s class map,
     thing classes only); instances come from every sequence of the SemanticKITTI-format root
-    ``augment.paste_bank``, or from the training scans when it is empty.
+    ``augment.paste_bank``, or from the training scans when it is empty. ``progress`` shows a
+    progress bar while the bank is read.
 
     Raises
     ------
@@ -273,7 +285,10 @@ def open_bank(augment, train) -> InstanceBank | None:
             )
         cid = cmap.class_names.index(name)
         if cid not in cmap.thing_ids:
-            raise InputError(f"augment.paste_classes: {name!r} is not a thing class")
+            things = ", ".join(cmap.class_names[i] for i in cmap.thing_ids)
+            raise InputError(
+                f"augment.paste_classes: {name!r} is not a thing class; thing classes: {things}"
+            )
         ids.append(cid)
     if augment.paste_bank:
         root = Path(augment.paste_bank)
@@ -292,4 +307,6 @@ def open_bank(augment, train) -> InstanceBank | None:
         name = str(root)
     else:
         source, name = train, "the training scans"
-    return InstanceBank.from_dataset(source, ids, augment.paste_min_points, source=name)
+    return InstanceBank.from_dataset(
+        source, ids, augment.paste_min_points, source=name, progress=progress
+    )

@@ -156,7 +156,10 @@ def _make_context(
         cfg=cfg,
         run_dir=run_dir,
         train_set=TrainingSet(
-            train_ds, cfg.augment, seed=cfg.optim.seed, bank=open_bank(cfg.augment, train_ds)
+            train_ds,
+            cfg.augment,
+            seed=cfg.optim.seed,
+            bank=open_bank(cfg.augment, train_ds, progress and info.is_main),
         ),
         val_set=val_ds,
         class_map=cmap,
