@@ -91,6 +91,18 @@ def test_profile_round_trip_and_rejects_bad_keys(tmp_path: Path):
         matched.sidewalk_reflect - matched.road_reflect
         < REALISTIC.sidewalk_reflect - REALISTIC.road_reflect
     )
+    # the session-10/11 worlds: each one documented change on top of the previous
+    materials = load_profile(str(REPO / "configs" / "synth_realistic_materials.yaml"))
+    road = load_profile(str(REPO / "configs" / "synth_realistic_materials_road.yaml"))
+    rare = {"rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign"}
+    changed = {k for k, v in materials.to_dict().items() if REALISTIC.to_dict()[k] != v}
+    assert changed == {"name"} | rare
+    changed = {k for k, v in road.to_dict().items() if materials.to_dict()[k] != v}
+    assert changed == {"name", "road_reflect", "sidewalk_reflect"}
+    assert (road.road_reflect, road.sidewalk_reflect) == (
+        matched.road_reflect,
+        matched.sidewalk_reflect,
+    )
     bad = tmp_path / "bad.yaml"
     bad.write_text("base: nope\n")
     with pytest.raises(InputError, match="unknown base profile"):
