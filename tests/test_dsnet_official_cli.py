@@ -220,6 +220,11 @@ def test_shipped_names(tmp_path):
     assert resolve_checkpoint("synthetic").name == "dsnet_synthetic.pt"
     assert resolve_checkpoint("synthetic-backbone").name == "backbone_synthetic.pt"
     assert {"synthetic", "synthetic-backbone"} <= set(shipped_checkpoints())
+    from panoptic_bench.demo.steps import TRAINED_ON
+
+    assert set(SHIPPED.values()) <= set(TRAINED_ON)  # every shipped file says what it learnt from
+    for path in shipped_checkpoints().values():
+        assert path.stat().st_size <= 30 * 2**20, path
     for name in set(SHIPPED) - set(shipped_checkpoints()):
         with pytest.raises(InputError, match="not shipped with this install; shipped: synthetic"):
             resolve_checkpoint(name)

@@ -165,6 +165,9 @@ TRAINED_ON = {
     "dsnet_synthetic.pt": "trained on the synthetic world only",
     "backbone_synthetic.pt": "trained on the synthetic world only",
     "dsnet_synthetic_realistic.pt": "trained on the realistic synthetic world only",
+    "dsnet_synthetic_materials_road.pt": (
+        "trained on the synthetic worlds only (realistic, then realistic-materials-road)"
+    ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
     "dsnet_semantickitti_cpu.pt": "trained on real scans of sequences 00-07, 09, 10",
     "backbone_semantickitti_cpu.pt": "trained on real scans of sequences 00-07, 09, 10",

@@ -53,6 +53,7 @@ SHIPPED: dict[str, str] = {
     "synthetic": "dsnet_synthetic.pt",
     "synthetic-backbone": "backbone_synthetic.pt",
     "synthetic-realistic": "dsnet_synthetic_realistic.pt",
+    "synthetic-materials-road": "dsnet_synthetic_materials_road.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
