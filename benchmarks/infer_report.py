@@ -17,6 +17,9 @@ STAGES = [  # (key, label)
     ("ds_fusion", "DS: small-instance filter + consensus fusion"),
     ("total_bwf", "**total Backbone with Fusion** (`Predictor.predict`)"),
     ("total_ds", "**total DS-Net** (`Predictor.predict`)"),
+    ("median_backbone", "backbone, median of the frames"),
+    ("median_total_bwf", "total Backbone with Fusion, median of the frames"),
+    ("median_total_ds", "total DS-Net, median of the frames"),
 ]
 
 
@@ -39,9 +42,9 @@ def render(
         + "load average "
         f"{load[0][0]:.2f} before / {load[1][0]:.2f} after (1 min; other work shares the "
         "machine, absolute ms are noisy); one fresh process per column, a small-input "
-        f"backbone call first (start-up costs). End-to-end: best of {repeats['CPU']} frames "
-        f"per method (CPU config) / {repeats['paper']} (paper config); the backbone row is the "
-        "fastest backbone call inside those frames; the other stages best of 3 on the same "
+        f"backbone call first (start-up costs). End-to-end: best (and median) of {repeats['CPU']} "
+        f"frames per method (CPU config) / {repeats['paper']} (paper config); the backbone row is "
+        "the fastest backbone call inside those frames; the other stages best of 3 on the same "
         f"inputs. Whole run {wall:.0f} s. "
         "Inside a frame's timing: `Predictor.predict` on a scan already in memory "
         "(voxelization, backbone, clustering, fusion); not inside: process start, imports, "
