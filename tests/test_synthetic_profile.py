@@ -103,6 +103,15 @@ def test_profile_round_trip_and_rejects_bad_keys(tmp_path: Path):
         matched.road_reflect,
         matched.sidewalk_reflect,
     )
+    verges = load_profile(str(REPO / "configs" / "synth_realistic_materials_road_verges.yaml"))
+    raised = load_profile(
+        str(REPO / "configs" / "synth_realistic_materials_road_raised_verges.yaml")
+    )
+    changed = {k for k, v in verges.to_dict().items() if road.to_dict()[k] != v}
+    assert changed == {"name", "verge_prob"}
+    changed = {k for k, v in raised.to_dict().items() if verges.to_dict()[k] != v}
+    assert changed == {"name", "verge_raise"}
+    assert raised.verge_raise == REALISTIC.terrain_raise
     bad = tmp_path / "bad.yaml"
     bad.write_text("base: nope\n")
     with pytest.raises(InputError, match="unknown base profile"):
@@ -272,6 +281,39 @@ def test_verges_replace_sidewalks_by_terrain():
     lab, plan = labels(1.0)
     assert not (lab == SIDEWALK).any() and (lab == TERRAIN).any()
     assert plan.curb  # things are still placed at the kerb line
+    kerbs = [h for *_, h in plan.kerb]
+    assert max(kerbs) <= REALISTIC.kerb[1]
+
+
+def test_raised_verges_stand_higher_and_carry_what_stands_on_them():
+    from panoptic_bench.datasets.synthetic.street import TERRAIN, build_street, kerb_at
+
+    def street(**kw):
+        prof = dataclasses.replace(REALISTIC, verge_prob=1.0, **kw)
+        return build_street(np.random.default_rng(7), (-60.0, 60.0), prof)
+
+    flat, _, flat_plan = street()
+    high, _, high_plan = street(verge_raise=(0.3, 0.4))
+    heights = [h for *_, h in high_plan.kerb]
+    assert all(0.3 <= h <= 0.4 for h in heights)
+    side, x0, x1, h = high_plan.kerb[0]
+    assert kerb_at(high_plan, side, 0.5 * (x0 + x1)) == h  # objects stand on the verge top
+
+    def verge_tops(prims, plan):  # tops of the terrain boxes whose inner edge is a kerb line
+        inner = np.abs(np.abs(prims.center[:, 1]) - prims.half[:, 1])
+        curbs = np.array([abs(c[3]) for c in plan.curb])
+        at_kerb = np.isclose(inner[:, None], curbs[None, :], atol=1e-6).any(1)
+        sel = (prims.label == TERRAIN) & at_kerb
+        return prims.center[sel, 2] + prims.half[sel, 2]
+
+    flat_tops = verge_tops(flat, flat_plan)
+    assert len(flat_tops) >= 2 and np.all(flat_tops <= REALISTIC.kerb[1] + 1e-9)
+    tops = verge_tops(high, high_plan)
+    assert len(tops) >= 2 and np.all((tops >= 0.3 - 1e-9) & (tops <= 0.4 + 1e-9))
+    with pytest.raises(InputError, match="verge_raise"):
+        WorldProfile.from_dict({"verge_raise": [0.2]})
+    with pytest.raises(InputError, match="verge_raise"):
+        WorldProfile.from_dict({"verge_raise": [0.5, 0.2]})
 
 
 def test_material_keys_change_only_the_remission_of_their_classes():

@@ -87,7 +87,9 @@ class WorldProfile:
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
       building, green, fence or plaza frontage per segment); ``verge_prob``: probability that a
-      segment's sidewalk is a grass verge (terrain at kerb height) instead; ``back_row_prob``:
+      segment's sidewalk is a grass verge (terrain at kerb height) instead; ``verge_raise``:
+      (low, high) height (m) of a verge's top above the road instead of the kerb height (empty: the
+      kerb height); ``back_row_prob``:
       probability of the second row of buildings behind a non-building frontage;
       ``parking_prob`` per segment;
     - object density: mean spacing (m) per side of pedestrian groups ``ped_spacing``, parked
@@ -136,6 +138,7 @@ class WorldProfile:
     green_depth: tuple[float, float] = (12.0, 22.0)
     frontage_p: tuple[float, float, float, float] = (0.38, 0.36, 0.14, 0.12)
     verge_prob: float = 0.0
+    verge_raise: tuple[float, ...] = ()
     back_row_prob: float = 1.0
     parking_prob: float = 0.45
     parked_fill: float = 1.0
@@ -159,6 +162,8 @@ class WorldProfile:
             "low_ring_keep": all(0.0 <= k <= 1.0 for k in self.low_ring_keep),
             "ego_box": len(self.ego_box) in (0, 5),
             "terrain_raise": len(self.terrain_raise) in (0, 2),
+            "verge_raise": len(self.verge_raise) in (0, 2)
+            and all(0.0 <= v <= 1.0 for v in self.verge_raise),
             "lanes_p": abs(sum(self.lanes_p) - 1.0) < 1e-9 and min(self.lanes_p) >= 0,
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
             "parking_prob": 0.0 <= self.parking_prob <= 1.0,

@@ -146,12 +146,15 @@ def _segment(
     plan.curb.append((side, x0, x1, y_curb))
     y_front = y_curb + plan.sidewalk_width
     kerb = KERB if prof.kerb[0] == prof.kerb[1] == KERB else float(rng.uniform(*prof.kerb))
-    plan.kerb.append((side, x0, x1, kerb))
     if prof.verge_prob and rng.random() < prof.verge_prob:
         # a grass verge instead of the paved sidewalk: real roads are often bordered by terrain
         y0, y1, refl = side * y_curb, side * y_front, rng.uniform(0.3, 0.5)
+        if prof.verge_raise:  # a raised bank (real terrain sits higher than sidewalks)
+            kerb = float(rng.uniform(*prof.verge_raise))
+        plan.kerb.append((side, x0, x1, kerb))  # what stands on the verge stands on its top
         b.box(x0, x1, y0, y1, 0.0, kerb, TERRAIN, refl, rough=prof.terrain_rough)
     else:
+        plan.kerb.append((side, x0, x1, kerb))
         b.box(x0, x1, side * y_curb, side * y_front, 0.0, kerb, SIDEWALK, prof.sidewalk_reflect)
     kind = rng.choice(["building", "green", "fence", "plaza"], p=list(prof.frontage_p))
     back = y_front + rng.uniform(*prof.green_depth)
