@@ -285,6 +285,29 @@ def test_verges_replace_sidewalks_by_terrain():
     assert max(kerbs) <= REALISTIC.kerb[1]
 
 
+def test_verges_change_only_the_sidewalks_they_replace():
+    """Verges draw from their own stream: same streets, same primitives, only labels move."""
+    from panoptic_bench.datasets.synthetic.street import SIDEWALK, TERRAIN, build_street
+
+    def street(verge_prob):
+        prof = dataclasses.replace(REALISTIC, verge_prob=verge_prob)
+        return build_street(np.random.default_rng(11), (-60.0, 60.0), prof)
+
+    (a, ga, pa), (b, gb, pb) = street(0.0), street(0.5)
+    np.testing.assert_array_equal(a.center, b.center)
+    np.testing.assert_array_equal(a.half, b.half)
+    np.testing.assert_array_equal(ga.label, gb.label)
+    moved = a.label != b.label
+    assert moved.any() and (a.label[moved] == SIDEWALK).all() and (b.label[moved] == TERRAIN).all()
+    assert (b.label == SIDEWALK).any()  # about half stay paved
+    assert pa.curb == pb.curb and pa.kerb == pb.kerb
+    # the whole scene (things, sensor draws) is the same street with or without verges
+    fa = Sequence(0, 3, 1, profile=REALISTIC).frame(0).sweep
+    fb = Sequence(0, 3, 1, profile=dataclasses.replace(REALISTIC, verge_prob=0.5)).frame(0).sweep
+    assert len(fa.xyz) > 0.9 * len(fb.xyz)
+    np.testing.assert_array_equal(np.unique(fa.instance), np.unique(fb.instance))
+
+
 def test_raised_verges_stand_higher_and_carry_what_stands_on_them():
     from panoptic_bench.datasets.synthetic.street import TERRAIN, build_street, kerb_at
 

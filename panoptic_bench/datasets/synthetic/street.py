@@ -134,7 +134,14 @@ def _buildings(b: _Builder, rng, x0, x1, side, y_near, heights=(6.0, 22.0)) -> N
 
 
 def _segment(
-    b: _Builder, gm: GroundMap, rng, plan: StreetPlan, side: int, x0: float, x1: float
+    b: _Builder,
+    gm: GroundMap,
+    rng,
+    plan: StreetPlan,
+    side: int,
+    x0: float,
+    x1: float,
+    verge_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -146,11 +153,11 @@ def _segment(
     plan.curb.append((side, x0, x1, y_curb))
     y_front = y_curb + plan.sidewalk_width
     kerb = KERB if prof.kerb[0] == prof.kerb[1] == KERB else float(rng.uniform(*prof.kerb))
-    if prof.verge_prob and rng.random() < prof.verge_prob:
+    if prof.verge_prob and verge_rng.random() < prof.verge_prob:
         # a grass verge instead of the paved sidewalk: real roads are often bordered by terrain
-        y0, y1, refl = side * y_curb, side * y_front, rng.uniform(0.3, 0.5)
+        y0, y1, refl = side * y_curb, side * y_front, verge_rng.uniform(0.3, 0.5)
         if prof.verge_raise:  # a raised bank (real terrain sits higher than sidewalks)
-            kerb = float(rng.uniform(*prof.verge_raise))
+            kerb = float(verge_rng.uniform(*prof.verge_raise))
         plan.kerb.append((side, x0, x1, kerb))  # what stands on the verge stands on its top
         b.box(x0, x1, y0, y1, 0.0, kerb, TERRAIN, refl, rough=prof.terrain_rough)
     else:
@@ -347,13 +354,16 @@ def build_street(
     if profile.road_dark:
         _dark_patches(gm, rng, plan, x0 - 5.0, x1 + 5.0)
     b = _Builder()
+    # the verges draw from their own stream (spawning does not advance ``rng``): a world with
+    # verges holds the same streets, objects and sensor draws as the same world without them
+    verge_rng = rng.spawn(1)[0] if profile.verge_prob else None
     for side in (-1, 1):
         x = x0
         while x < x1:
             length = rng.uniform(15.0, 40.0)
             if x1 - (x + length) < 10.0:
                 length = x1 - x
-            _segment(b, gm, rng, plan, side, x, x + length)
+            _segment(b, gm, rng, plan, side, x, x + length, verge_rng)
             x += length
     _furniture(b, rng, plan, x0, x1)
     if profile.clutter_spacing:
