@@ -87,7 +87,8 @@ class WorldProfile:
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
       building, green, fence or plaza frontage per segment); ``verge_prob``: probability that a
-      segment's sidewalk is a grass verge (terrain at kerb height) instead; ``verge_raise``:
+      segment's sidewalk is a grass verge (terrain at kerb height) instead, drawn from its own
+      random stream so that the rest of the street is unchanged; ``verge_raise``:
       (low, high) height (m) of a verge's top above the road instead of the kerb height (empty: the
       kerb height); ``back_row_prob``:
       probability of the second row of buildings behind a non-building frontage;
