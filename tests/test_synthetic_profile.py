@@ -339,6 +339,38 @@ def test_raised_verges_stand_higher_and_carry_what_stands_on_them():
         WorldProfile.from_dict({"verge_raise": [0.5, 0.2]})
 
 
+def test_trunk_height_lowers_crowns_and_changes_nothing_else():
+    """trunk_height: the same draws, so only tree trunks and the crowns on them move."""
+    from panoptic_bench.datasets.synthetic.street import TRUNK, VEGETATION, build_street
+
+    def street(**kw):
+        prof = dataclasses.replace(REALISTIC, **kw)
+        return build_street(np.random.default_rng(5), (-60.0, 60.0), prof)
+
+    (a, ga, pa), (b, gb, pb) = street(), street(trunk_height=(1.0, 2.0))
+    np.testing.assert_array_equal(a.label, b.label)
+    np.testing.assert_array_equal(ga.label, gb.label)
+    assert pa.curb == pb.curb and pa.kerb == pb.kerb
+    trunk = a.label == TRUNK
+    crown = np.zeros_like(trunk)
+    crown[1:] = trunk[:-1] & (a.label[1:] == VEGETATION)  # each crown follows its trunk
+    assert trunk.sum() >= 5 and crown.sum() == trunk.sum()
+    same = ~(trunk | crown)
+    np.testing.assert_array_equal(a.center[same], b.center[same])
+    np.testing.assert_array_equal(a.half[same], b.half[same])
+    # bare trunk = 2 x half height, in the profile's range; crowns come down by the same amount
+    assert np.all((2 * a.half[trunk, 2] >= 2.0 - 1e-9) & (2 * a.half[trunk, 2] <= 3.5 + 1e-9))
+    assert np.all((2 * b.half[trunk, 2] >= 1.0 - 1e-9) & (2 * b.half[trunk, 2] <= 2.0 + 1e-9))
+    drop = 2 * (a.half[trunk, 2] - b.half[trunk, 2])
+    np.testing.assert_allclose(a.center[crown, 2] - b.center[crown, 2], drop, atol=1e-9)
+    np.testing.assert_array_equal(a.center[crown, :2], b.center[crown, :2])
+    assert REALISTIC.trunk_height == CLASSIC.trunk_height == (2.0, 3.5)
+    with pytest.raises(InputError, match="trunk_height"):
+        WorldProfile.from_dict({"trunk_height": [2.0, 1.0]})
+    with pytest.raises(InputError, match="trunk_height"):
+        WorldProfile.from_dict({"trunk_height": [0.1, 1.0]})
+
+
 def test_material_keys_change_only_the_remission_of_their_classes():
     """rem_dark_other / rem_gain_*: same geometry and labels, only those classes' remission moves."""
     mat = dataclasses.replace(

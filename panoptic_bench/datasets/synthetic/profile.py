@@ -98,7 +98,9 @@ class WorldProfile:
       ``lead_car_prob``: a car ahead in the ego lane;
       ``parked_fill``: fraction of parking strips filled with cars;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
-      (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas.
+      (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
+      ``trunk_height``: (low, high) bare trunk below a tree's crown (m; the crown sits on it, so a
+      lower range gives crowns that hang over the trunk; the same random draws for any range).
     """
 
     name: str = "classic"
@@ -151,6 +153,7 @@ class WorldProfile:
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
+    trunk_height: tuple[float, float] = (2.0, 3.5)
 
     def __post_init__(self) -> None:
         problems = []
@@ -188,6 +191,7 @@ class WorldProfile:
             "cyclist_spacing": self.cyclist_spacing > 0,
             "tree_spacing": self.tree_spacing > 0,
             "bush_spacing": self.bush_spacing > 0,
+            "trunk_height": 0.2 <= self.trunk_height[0] and self.trunk_height[1] <= 6.0,
             "clutter_spacing": self.clutter_spacing >= 0,
             "lane_width": self.lane_width[0] >= 2.0,
             "sidewalk": self.sidewalk[0] >= 0.5,

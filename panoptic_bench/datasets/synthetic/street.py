@@ -98,8 +98,15 @@ class _Builder:
         )
 
 
-def _tree(b: _Builder, rng: np.random.Generator, x: float, y: float, z: float) -> None:
-    trunk_h = rng.uniform(2.0, 3.5)
+def _tree(
+    b: _Builder,
+    rng: np.random.Generator,
+    x: float,
+    y: float,
+    z: float,
+    trunk_height: tuple[float, float] = (2.0, 3.5),
+) -> None:
+    trunk_h = rng.uniform(*trunk_height)
     r = rng.uniform(0.12, 0.25)
     b.add(CYLINDER, (x, y, z + trunk_h / 2), (r, r, trunk_h / 2), TRUNK, rng.uniform(0.25, 0.4))
     rc = rng.uniform(1.4, 3.2)
@@ -216,7 +223,8 @@ def _segment(
             gm.paint(xp, xp + 2.0, ys[0], ys[1], OTHER_GROUND, 0.28)
         length = x1 - x0
         for _ in range(rng.poisson(length / prof.tree_spacing)):
-            _tree(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0), z)
+            xt, yt = rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0)
+            _tree(b, rng, xt, yt, z, prof.trunk_height)
         for _ in range(rng.poisson(length / prof.bush_spacing)):
             _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
     if prof.back_row_prob >= 1.0 or rng.random() < prof.back_row_prob:
@@ -285,7 +293,8 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
             if rng.random() < 0.55:
                 xt = x + rng.uniform(2.0, 6.0)
                 while xt < min(x + seg, x1):
-                    _tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), kerb_at(plan, side, xt))
+                    zt = kerb_at(plan, side, xt)
+                    _tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), zt, plan.profile.trunk_height)
                     xt += rng.uniform(7.0, 12.0)
             x += seg
 
