@@ -169,10 +169,15 @@ TRAINED_ON = {
         "trained on the synthetic worlds only (realistic, then realistic-materials-road)"
     ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
-    "dsnet_semantickitti_cpu.pt": "trained on real scans of sequences 00-07, 09, 10",
-    "backbone_semantickitti_cpu.pt": "trained on real scans of sequences 00-07, 09, 10",
+    "dsnet_semantickitti_cpu.pt": (
+        "trained on real scans of sequences 00-07, 09, 10 + rare instances pasted from synthetic streets"
+    ),
+    "backbone_semantickitti_cpu.pt": (
+        "trained on real scans of sequences 00-07, 09, 10 + rare instances pasted from synthetic streets"
+    ),
     "dsnet_semantickitti_cpu_heldout0506.pt": (
         "trained on real scans of sequences 00-04, 07, 09, 10 (05 and 06 held out)"
+        " + rare instances pasted from synthetic streets"
     ),
 }
 
