@@ -112,6 +112,11 @@ def test_profile_round_trip_and_rejects_bad_keys(tmp_path: Path):
     changed = {k for k, v in raised.to_dict().items() if verges.to_dict()[k] != v}
     assert changed == {"name", "verge_raise"}
     assert raised.verge_raise == REALISTIC.terrain_raise
+    low = load_profile(
+        str(REPO / "configs" / "synth_realistic_materials_road_raised_verges_low_crowns.yaml")
+    )
+    changed = {k for k, v in low.to_dict().items() if raised.to_dict()[k] != v}
+    assert changed == {"name", "trunk_height"}
     bad = tmp_path / "bad.yaml"
     bad.write_text("base: nope\n")
     with pytest.raises(InputError, match="unknown base profile"):

@@ -54,6 +54,7 @@ SHIPPED: dict[str, str] = {
     "synthetic-backbone": "backbone_synthetic.pt",
     "synthetic-realistic": "dsnet_synthetic_realistic.pt",
     "synthetic-materials-road": "dsnet_synthetic_materials_road.pt",
+    "synthetic-low-crowns": "dsnet_synthetic_low_crowns.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
