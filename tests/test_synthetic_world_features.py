@@ -113,3 +113,65 @@ def test_trunk_height_lowers_crowns_and_changes_nothing_else():
         WorldProfile.from_dict({"trunk_height": [2.0, 1.0]})
     with pytest.raises(InputError, match="trunk_height"):
         WorldProfile.from_dict({"trunk_height": [0.1, 1.0]})
+
+
+def test_parking_road_turns_parking_strips_into_road_and_nothing_else():
+    """Road-labelled parking strips draw from their own stream: primitives and plan are unchanged."""
+    from panoptic_bench.datasets.synthetic.street import PARKING, ROAD, build_street
+
+    def street(**kw):
+        prof = dataclasses.replace(REALISTIC, parking_prob=0.6, verge_prob=0.35, **kw)
+        return build_street(np.random.default_rng(5), (-60.0, 60.0), prof)
+
+    (a, ga, pa), (b, gb, pb) = street(), street(parking_road=1.0)
+    (_, gh, _) = street(parking_road=0.5)
+    assert pa.parking and (ga.label == PARKING).any()
+    assert not (gb.label == PARKING).any()  # every strip is carriageway
+    moved = ga.label != gb.label
+    assert moved.any() and (ga.label[moved] == PARKING).all() and (gb.label[moved] == ROAD).all()
+    # the strips take the road's paint and texture, not the parking bay's flat 0.32
+    strip = gb.reflect[moved]
+    assert abs(float(np.median(strip)) - REALISTIC.road_reflect) < 0.01 and strip.std() > 0.01
+    for x, y in ((a.center, b.center), (a.half, b.half), (a.label, b.label)):
+        np.testing.assert_array_equal(x, y)
+    assert pa.parking == pb.parking and pa.curb == pb.curb and pa.kerb == pb.kerb
+    assert (gh.label == PARKING).any() and ((ga.label == PARKING) & (gh.label == ROAD)).any()
+    with pytest.raises(InputError, match="parking_road"):
+        WorldProfile(parking_road=1.5)
+
+
+def test_ego_offset_moves_only_the_ego_towards_the_road_centre():
+    from panoptic_bench.datasets.synthetic.scene import EGO_LANE_MARGIN, generate_scene
+
+    for seed in range(6):
+        a = generate_scene(seed, 1.0, profile=REALISTIC)
+        b = generate_scene(seed, 1.0, profile=dataclasses.replace(REALISTIC, ego_offset=(0.0, 1.5)))
+        shift = b.ego_y - a.ego_y
+        assert 0.0 <= shift <= a.plan.lane_width / 2 - EGO_LANE_MARGIN + 1e-12
+        assert a.ego_phase == b.ego_phase and a.ego_speed == b.ego_speed
+        np.testing.assert_array_equal(a.static.center, b.static.center)
+        np.testing.assert_array_equal(a._xyz0, b._xyz0)
+    c = generate_scene(3, 1.0, profile=dataclasses.replace(REALISTIC, ego_offset=(3.0, 3.0)))
+    assert c.ego_y == pytest.approx(
+        -(c.plan.lanes_per_side - 0.5) * c.plan.lane_width + c.plan.lane_width / 2 - EGO_LANE_MARGIN
+    )
+    for bad in ((1.0,), (2.0, 1.0), (0.0, 3.5)):
+        with pytest.raises(InputError, match="ego_offset"):
+            WorldProfile(ego_offset=bad)
+
+
+def test_road_edges_on_a_hand_made_street():
+    """Road from 3 m right to 5 m left of the sensor, sidewalk beyond, a car on the road."""
+    from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
+
+    xs, ys = np.meshgrid(np.arange(-11.9, 12.0, 0.2), np.arange(-8.0, 8.0, 0.1))
+    x, y = xs.ravel(), ys.ravel() + 0.05
+    raw = np.where((y > -3.0) & (y < 5.0), 40, 48).astype(np.uint32)
+    raw[(y > 1.0) & (y < 2.5)] = 10  # a car in the left lane does not end the road
+    raw[(y < -3.0) & (y > -4.0) & (x > 0)] = 44  # parking is carriageway too
+    pts = np.column_stack([x, y, np.full_like(x, -1.75), np.full_like(x, 0.3)]).astype(np.float32)
+    m, _ = scan_measures(pts, raw)
+    assert "road_right" in MEASURES and "road_left" in MEASURES
+    # eight slabs end at 3.05 m (sidewalk), eight at 4.05 m (behind the parking): median of 16 = 3.55
+    assert m["road_right"] == pytest.approx(3.55, abs=1e-3)
+    assert m["road_left"] == pytest.approx(5.05, abs=1e-3)

@@ -71,16 +71,29 @@ class GroundMap:
         reflect: float | None = None,
     ) -> None:
         """Set the label and/or reflectivity of the rectangle ``[x0, x1) x [y0, y1)``."""
+        win = self._window(x0, x1, y0, y1)
+        if win is None:
+            return
+        if label is not None:
+            self.label[win] = label
+        if reflect is not None:
+            self.reflect[win] = reflect
+
+    def add_noise(
+        self, x0: float, x1: float, y0: float, y1: float, rng: np.random.Generator, std: float
+    ) -> None:
+        """Add iid ``N(0, std)`` to the reflectivity of the cells of ``[x0, x1) x [y0, y1)``."""
+        win = self._window(x0, x1, y0, y1)
+        if win is not None:
+            cells = self.reflect[win]
+            cells += rng.normal(0.0, std, size=cells.shape).astype(np.float32)
+
+    def _window(self, x0: float, x1: float, y0: float, y1: float) -> tuple[slice, slice] | None:
         (i0, i1), (j0, j1) = self._index(np.array([x0, x1]), np.array([y0, y1]))
         nx, ny = self.label.shape
         i0, i1 = max(int(i0), 0), min(int(i1), nx)
         j0, j1 = max(int(j0), 0), min(int(j1), ny)
-        if i0 >= i1 or j0 >= j1:
-            return
-        if label is not None:
-            self.label[i0:i1, j0:j1] = label
-        if reflect is not None:
-            self.reflect[i0:i1, j0:j1] = reflect
+        return None if i0 >= i1 or j0 >= j1 else (slice(i0, i1), slice(j0, j1))
 
     def lookup(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Raw id and reflectivity of ground points.

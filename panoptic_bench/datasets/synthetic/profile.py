@@ -92,10 +92,14 @@ class WorldProfile:
       (low, high) height (m) of a verge's top above the road instead of the kerb height (empty: the
       kerb height); ``back_row_prob``:
       probability of the second row of buildings behind a non-building frontage;
-      ``parking_prob`` per segment;
+      ``parking_prob`` per segment; ``parking_road``: probability that a parking strip is part of
+      the carriageway (labelled and textured as road, as kerb-side parking on KITTI's residential
+      streets) instead of a marked parking bay, drawn from its own random stream;
     - object density: mean spacing (m) per side of pedestrian groups ``ped_spacing``, parked
       bicycles ``bike_spacing``, cyclists ``cyclist_spacing``; ``traffic_gap`` range (m);
-      ``lead_car_prob``: a car ahead in the ego lane;
+      ``lead_car_prob``: a car ahead in the ego lane; ``ego_offset``: (low, high) lateral offset (m)
+      of the ego from the centre of its lane towards the road centre (it stays 0.3 m inside its
+      lane; empty = the lane centre), drawn per sequence from its own random stream;
       ``parked_fill``: fraction of parking strips filled with cars;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
@@ -144,12 +148,14 @@ class WorldProfile:
     verge_raise: tuple[float, ...] = ()
     back_row_prob: float = 1.0
     parking_prob: float = 0.45
+    parking_road: float = 0.0
     parked_fill: float = 1.0
     ped_spacing: float = 30.0
     bike_spacing: float = 60.0
     cyclist_spacing: float = 70.0
     traffic_gap: tuple[float, float] = (25.0, 90.0)
     lead_car_prob: float = 0.5
+    ego_offset: tuple[float, ...] = ()
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -166,11 +172,14 @@ class WorldProfile:
             "low_ring_keep": all(0.0 <= k <= 1.0 for k in self.low_ring_keep),
             "ego_box": len(self.ego_box) in (0, 5),
             "terrain_raise": len(self.terrain_raise) in (0, 2),
+            "ego_offset": len(self.ego_offset) in (0, 2)
+            and all(0.0 <= v <= 3.0 for v in self.ego_offset),
             "verge_raise": len(self.verge_raise) in (0, 2)
             and all(0.0 <= v <= 1.0 for v in self.verge_raise),
             "lanes_p": abs(sum(self.lanes_p) - 1.0) < 1e-9 and min(self.lanes_p) >= 0,
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
             "parking_prob": 0.0 <= self.parking_prob <= 1.0,
+            "parking_road": 0.0 <= self.parking_road <= 1.0,
             "verge_prob": 0.0 <= self.verge_prob <= 1.0,
             "parked_fill": 0.0 <= self.parked_fill <= 1.0,
             "lead_car_prob": 0.0 <= self.lead_car_prob <= 1.0,

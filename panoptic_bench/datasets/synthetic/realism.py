@@ -23,6 +23,10 @@ Conventions (the same estimator runs on real and synthetic scans, so only the co
 - **beside the road**: the ground points (parking, sidewalk, other-ground, terrain) 3-20 m away
   whose 0.5 m cell (x, y) or one of its 8 neighbours holds a road point; the share of terrain
   among them says whether grass verges border the road;
+- **road edges**: in 1 m slabs across the street 4-12 m ahead and behind, the lateral distance from
+  the sensor to the first ground point (of the ground classes) that is neither road nor parking,
+  to the right and to the left; the median over the slabs (cars and people on the road are not
+  ground, so they do not end it);
 - heights of sidewalk and terrain are median residuals of their points 3-20 m away from that
   plane; the ego hole is the minimum horizontal range of ground points (road, parking, sidewalk, other-ground,
   terrain) in each of 8 azimuth sectors (45 degrees,
@@ -71,6 +75,8 @@ MEASURES: dict[str, tuple[str, str]] = {
     "terrain_h": ("ground: terrain height above the road (m)", "median"),
     "building_y": ("layout: building median lateral distance (m)", "median"),
     "car_y": ("layout: car median lateral distance (m)", "median"),
+    "road_right": ("layout: road edge to the right of the sensor (m)", "median"),
+    "road_left": ("layout: road edge to the left of the sensor (m)", "median"),
     "car_range": ("layout: car points median range (m)", "median"),
     "near5_pct": ("layout: % of points under 5 m", "mean"),
     "far_max": ("layout: farthest point (m)", "median"),
@@ -91,7 +97,7 @@ HISTOGRAMS = {
 RANGE_BINS = np.arange(0.0, 85.0, 5.0)
 N_RINGS = 64
 N_SECTORS = 8
-ROAD, SIDEWALK, TERRAIN, CAR, BUILDING = 40, 48, 72, 10, 50
+ROAD, PARKING, SIDEWALK, TERRAIN, CAR, BUILDING = 40, 44, 48, 72, 10, 50
 CLUTTER = (52, 99)
 GROUND = (40, 44, 48, 49, 72)
 _MOVING_CAR = 252
@@ -167,6 +173,26 @@ def _beside_road_terrain(x, y, r, raw: np.ndarray, cell: float = 0.5) -> float:
             near |= np.roll(np.roll(occ, di, 0), dj, 1)
     beside = ground & near[i, j]
     return _pct(raw[beside] == TERRAIN) if beside.any() else float("nan")
+
+
+def _road_edges(x, y, raw: np.ndarray) -> tuple[float, float]:
+    """Median lateral distance (m) to the first non-carriageway ground point: right, left."""
+    ground = np.isin(raw, GROUND)
+    slab = np.floor(x).astype(np.int64)
+    ahead = ground & (np.abs(x) >= 4) & (np.abs(x) < 12)
+    edges = []
+    for side in (-1, 1):
+        found = []
+        for k in np.unique(slab[ahead]):
+            sel = ahead & (slab == k) & (side * y > 0)
+            if sel.sum() < 20:
+                continue
+            order = np.argsort(side * y[sel], kind="stable")
+            off = ~np.isin(raw[sel][order], (ROAD, PARKING))
+            if off.any():
+                found.append(float(side * y[sel][order][np.argmax(off)]))
+        edges.append(_median(np.array(found)))
+    return edges[0], edges[1]
 
 
 def _jitter(x, y, z, r, mask: np.ndarray) -> float:
@@ -265,6 +291,7 @@ def scan_measures(
         m["sidewalk_h"] = _median(resid[near & (raw == SIDEWALK)])
         m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
     m["verge_terrain_pct"] = _beside_road_terrain(x, y, r, raw)
+    m["road_right"], m["road_left"] = _road_edges(x, y, raw)
     for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
         m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
     ring = recover_rings(points[:, :3])

@@ -28,6 +28,8 @@ from panoptic_bench.datasets.synthetic.things import Thing, build
 __all__ = ["Scene", "generate_scene"]
 
 MARGIN = 100.0
+#: The ego stays this far (m) inside its lane when ``ego_offset`` moves it towards the centre.
+EGO_LANE_MARGIN = 0.3
 
 
 @dataclass
@@ -47,7 +49,7 @@ class Scene:
     ego_speed : float
         m/s along +x.
     ego_y : float
-        Lateral position of the ego lane centre.
+        Lateral position of the ego path (its lane centre, moved by ``profile.ego_offset``).
     """
 
     static: Primitives
@@ -230,4 +232,8 @@ def generate_scene(
     _sidewalk(rng, plan, x_range, things)
     _traffic(rng, plan, x_range, ego_lane, speed, things)
     ego_y = -(ego_lane + 0.5) * plan.lane_width
+    if plan.profile.ego_offset:
+        # its own stream (spawning does not advance ``rng``): streets, things and phase unchanged
+        shift = float(rng.spawn(1)[0].uniform(*plan.profile.ego_offset))
+        ego_y += min(shift, plan.lane_width / 2 - EGO_LANE_MARGIN)
     return Scene(static, ground, plan, things, speed, ego_y, float(rng.uniform(0, 2 * np.pi)))

@@ -25,6 +25,7 @@ OTHER_STRUCTURE, OTHER_OBJECT = 52, 99
 BUILDING, FENCE, VEGETATION, TRUNK, TERRAIN, POLE, SIGN = 50, 51, 70, 71, 72, 80, 81
 KERB = 0.14
 PARKING_WIDTH = 2.3
+ROAD_TEXTURE = 0.025  # std of the road paint's reflectivity per 0.2 m cell
 
 
 @dataclass
@@ -149,6 +150,7 @@ def _segment(
     x0: float,
     x1: float,
     verge_rng: np.random.Generator | None = None,
+    strip_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -156,7 +158,12 @@ def _segment(
     if parking:
         plan.parking.append((side, x0, x1))
         ys = sorted((side * plan.road_half, side * y_curb))
-        gm.paint(x0, x1, ys[0], ys[1], PARKING, 0.32)
+        if prof.parking_road and strip_rng.random() < prof.parking_road:
+            # kerb-side parking on the carriageway: road label and the road's texture
+            gm.paint(x0, x1, ys[0], ys[1], ROAD, prof.road_reflect)
+            gm.add_noise(x0, x1, ys[0], ys[1], strip_rng, ROAD_TEXTURE)
+        else:
+            gm.paint(x0, x1, ys[0], ys[1], PARKING, 0.32)
     plan.curb.append((side, x0, x1, y_curb))
     y_front = y_curb + plan.sidewalk_width
     kerb = KERB if prof.kerb[0] == prof.kerb[1] == KERB else float(rng.uniform(*prof.kerb))
@@ -301,7 +308,7 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
 
 def _markings(gm: GroundMap, rng, plan: StreetPlan, x0: float, x1: float) -> None:
     gm.paint(x0, x1, -plan.road_half, plan.road_half, ROAD, plan.profile.road_reflect)
-    noise = rng.normal(0.0, 0.025, size=gm.reflect.shape).astype(np.float32)
+    noise = rng.normal(0.0, ROAD_TEXTURE, size=gm.reflect.shape).astype(np.float32)
     gm.reflect += np.where(gm.label == ROAD, noise, 0.0).astype(np.float32)
     lines = [0.0] + [
         k * plan.lane_width * s for k in range(1, plan.lanes_per_side) for s in (-1, 1)
@@ -366,13 +373,15 @@ def build_street(
     # the verges draw from their own stream (spawning does not advance ``rng``): a world with
     # verges holds the same streets, objects and sensor draws as the same world without them
     verge_rng = rng.spawn(1)[0] if profile.verge_prob else None
+    # so do the road-labelled parking strips (spawned after the verges: their stream is unchanged)
+    strip_rng = rng.spawn(1)[0] if profile.parking_road else None
     for side in (-1, 1):
         x = x0
         while x < x1:
             length = rng.uniform(15.0, 40.0)
             if x1 - (x + length) < 10.0:
                 length = x1 - x
-            _segment(b, gm, rng, plan, side, x, x + length, verge_rng)
+            _segment(b, gm, rng, plan, side, x, x + length, verge_rng, strip_rng)
             x += length
     _furniture(b, rng, plan, x0, x1)
     if profile.clutter_spacing:
