@@ -175,3 +175,30 @@ def test_road_edges_on_a_hand_made_street():
     # eight slabs end at 3.05 m (sidewalk), eight at 4.05 m (behind the parking): median of 16 = 3.55
     assert m["road_right"] == pytest.approx(3.55, abs=1e-3)
     assert m["road_left"] == pytest.approx(5.05, abs=1e-3)
+
+
+def test_lamp_keys_thin_the_lamp_poles_and_hang_signs_on_them_only():
+    from panoptic_bench.datasets.synthetic.street import POLE, SIGN, build_street
+
+    def street(**kw):
+        prof = dataclasses.replace(REALISTIC, verge_prob=0.35, **kw)
+        return build_street(np.random.default_rng(3), (-80.0, 80.0), prof)[0]
+
+    a = street()
+    b = street(lamp_keep=0.6, lamp_signs=1.0, lamp_sign_half=(0.4, 0.8))
+    rows = lambda p, m: np.column_stack([p.center[m], p.half[m]])  # noqa: E731
+    other_a, other_b = ~np.isin(a.label, (POLE, SIGN)), ~np.isin(b.label, (POLE, SIGN))
+    np.testing.assert_array_equal(rows(a, other_a), rows(b, other_b))  # trees, buildings: same
+    poles_a, poles_b = rows(a, a.label == POLE), rows(b, b.label == POLE)
+    assert 0 < len(poles_b) < len(poles_a)
+    assert {tuple(r) for r in poles_b} <= {tuple(r) for r in poles_a}
+    signs_a, signs_b = rows(a, a.label == SIGN), rows(b, b.label == SIGN)
+    assert {tuple(r) for r in signs_a} <= {tuple(r) for r in signs_b}
+    new = np.array([r for r in signs_b if tuple(r) not in {tuple(s) for s in signs_a}])
+    lamps = (b.label == POLE) & (b.half[:, 2] > 2.0)  # the lamp posts (6-9 m tall)
+    assert len(new) == lamps.sum()  # lamp_signs 1.0: one plate on every lamp post standing
+    assert np.all((new[:, 4] >= 0.4) & (new[:, 4] <= 0.8)) and np.all(new[:, 3] == 0.01)
+    with pytest.raises(InputError, match="lamp_keep"):
+        WorldProfile(lamp_keep=-0.1)
+    with pytest.raises(InputError, match="lamp_sign_half"):
+        WorldProfile(lamp_sign_half=(0.01, 0.5))

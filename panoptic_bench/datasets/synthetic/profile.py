@@ -104,7 +104,11 @@ class WorldProfile:
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
       ``trunk_height``: (low, high) bare trunk below a tree's crown (m; the crown sits on it, so a
-      lower range gives crowns that hang over the trunk; the same random draws for any range).
+      lower range gives crowns that hang over the trunk; the same random draws for any range);
+    - street furniture: ``lamp_keep``: share of the lamp poles that are built (the draws are made
+      for every one, so the rest of the street is unchanged); ``lamp_signs``: probability that a
+      lamp pole carries a traffic-sign plate (real lamp posts often do), drawn from its own stream;
+      ``lamp_sign_half``: (low, high) half side (m) of those square plates.
     """
 
     name: str = "classic"
@@ -160,6 +164,9 @@ class WorldProfile:
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
     trunk_height: tuple[float, float] = (2.0, 3.5)
+    lamp_keep: float = 1.0
+    lamp_signs: float = 0.0
+    lamp_sign_half: tuple[float, float] = (0.32, 0.32)
 
     def __post_init__(self) -> None:
         problems = []
@@ -180,6 +187,9 @@ class WorldProfile:
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
             "parking_prob": 0.0 <= self.parking_prob <= 1.0,
             "parking_road": 0.0 <= self.parking_road <= 1.0,
+            "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
+            "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
+            "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,
             "verge_prob": 0.0 <= self.verge_prob <= 1.0,
             "parked_fill": 0.0 <= self.parked_fill <= 1.0,
             "lead_car_prob": 0.0 <= self.lead_car_prob <= 1.0,

@@ -273,6 +273,9 @@ def _clutter(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None:
 
 
 def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None:
+    prof = plan.profile
+    # which lamp poles stand and which carry a sign: their own stream (after the verges and strips)
+    lamp_rng = rng.spawn(1)[0] if prof.lamp_signs or prof.lamp_keep < 1.0 else None
     for side in (-1, 1):
 
         def y_curb_at(x: float, side: int = side) -> float:
@@ -283,8 +286,13 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
             y = side * (y_curb_at(x) + 0.45)
             h = rng.uniform(6.0, 9.0)
             kz = kerb_at(plan, side, x)
-            b.add(CYLINDER, (x, y, kz + h / 2), (0.1, 0.1, h / 2), POLE, 0.4)
-            b.add(BOX, (x, y - side * 0.8, kz + h - 0.1), (0.08, 0.8, 0.06), POLE, 0.4)
+            if prof.lamp_keep >= 1.0 or lamp_rng.random() < prof.lamp_keep:
+                b.add(CYLINDER, (x, y, kz + h / 2), (0.1, 0.1, h / 2), POLE, 0.4)
+                b.add(BOX, (x, y - side * 0.8, kz + h - 0.1), (0.08, 0.8, 0.06), POLE, 0.4)
+                if prof.lamp_signs and lamp_rng.random() < prof.lamp_signs:
+                    half = lamp_rng.uniform(*prof.lamp_sign_half)  # plates, street-name boards
+                    zs = kz + lamp_rng.uniform(2.2, 3.0) + half
+                    b.add(BOX, (x + 0.12, y, zs), (0.01, half, half), SIGN, 0.95)
             x += rng.uniform(18.0, 32.0)
         x = x0 + rng.uniform(0, 30)
         while x < x1:
