@@ -139,6 +139,7 @@ def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
         offset_norm_first=is_official(cfg),
         fast_inference=is_official(cfg),
         remission_input=m.remission_input,
+        level_ground=m.level_ground,
     )
 
 

@@ -75,11 +75,15 @@ class ModelConfig:
     (``nominal`` when a config or checkpoint does not name one). ``remission_input``: False
     feeds the network a zero remission channel (same 9-D input, same weights' shapes), for a
     model that must not lean on a sensor's intensity calibration (the synthetic-to-real
-    shortcut of issue 13); inference follows the checkpoint's config.
+    shortcut of issue 13); inference follows the checkpoint's config. ``level_ground``: every
+    scan is rotated so that its fitted ground plane is level before it is voxelized, in
+    training and inference (:mod:`panoptic_bench.dsnet.data.level`; no weight changes, so a
+    model trained without it can initialise one with it).
     """
 
     variant: NetworkVariant = NetworkVariant.NOMINAL
     remission_input: bool = True
+    level_ground: bool = False
     init_size: int = 32
     point_hidden: tuple[int, ...] = (64, 128, 256)
     point_feature_dim: int = 256

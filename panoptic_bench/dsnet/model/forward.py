@@ -17,6 +17,11 @@ __all__ = ["backbone_forward"]
 def backbone_forward(model: nn.Module, samples: list[LidarSample], grid, device: torch.device):
     """Voxelize ``samples`` on ``grid`` (a ``CylinderGrid``) into one batch and run the backbone.
 
+    A backbone built with ``level_ground=True`` sees each scan levelled by
+    :func:`panoptic_bench.dsnet.data.level.level_points` (training, validation and inference all
+    come through here); its offsets are rotated back, so they are in each scan's own frame.
+    The samples are not modified.
+
     Returns
     -------
     BackboneOutput
@@ -25,5 +30,22 @@ def backbone_forward(model: nn.Module, samples: list[LidarSample], grid, device:
     """
     from panoptic_bench.dsnet.model.voxelize import collate
 
-    scans = [np.concatenate([s.xyz, s.remission[:, None]], axis=1) for s in samples]
-    return model(collate(scans, grid, device=device))
+    net = getattr(model, "module", model)  # DistributedDataParallel keeps the flag on .module
+    if not getattr(net, "level_ground", False):
+        scans = [np.concatenate([s.xyz, s.remission[:, None]], axis=1) for s in samples]
+        return model(collate(scans, grid, device=device))
+    from panoptic_bench.dsnet.data.level import level_points
+
+    levelled = [level_points(s.xyz) for s in samples]
+    scans = [
+        np.concatenate([xyz, s.remission[:, None]], axis=1)
+        for (xyz, _), s in zip(levelled, samples)
+    ]
+    out = model(collate(scans, grid, device=device))
+    parts, start = [], 0
+    for (_, rot), s in zip(levelled, samples):  # a levelled-frame vector v is v @ R in the scan
+        stop = start + len(s.xyz)
+        parts.append(out.offsets[start:stop] @ out.offsets.new_tensor(rot))
+        start = stop
+    out.offsets = torch.cat(parts)
+    return out

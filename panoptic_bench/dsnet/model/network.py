@@ -97,6 +97,10 @@ class PanopticBackbone(nn.Module):
     remission_input : bool
         False: the remission channel (last of the 9 point features) is replaced by zeros before
         the point MLP, so predictions do not depend on remission (the batch is not modified).
+    level_ground : bool
+        True: :func:`panoptic_bench.dsnet.model.forward.backbone_forward` levels every scan
+        (:mod:`panoptic_bench.dsnet.data.level`) before voxelizing it and rotates the offsets
+        back. The flag changes no weight; it is read by that function, not by ``forward``.
 
     Both flags are False for the nominal network and True for the official one
     (``model.variant`` of the config, see :func:`panoptic_bench.dsnet.checkpoint.build_backbone`).
@@ -115,10 +119,12 @@ class PanopticBackbone(nn.Module):
         offset_norm_first: bool = False,
         fast_inference: bool = False,
         remission_input: bool = True,
+        level_ground: bool = False,
     ) -> None:
         super().__init__()
         self.fast_inference = bool(fast_inference)
         self.remission_input = bool(remission_input)
+        self.level_ground = bool(level_ground)
         self.grid = CylinderGrid() if grid is None else grid
         self.num_classes = num_classes
         self.encoder = PointVoxelEncoder(
@@ -135,6 +141,7 @@ class PanopticBackbone(nn.Module):
 
     def extra_repr(self) -> str:
         extra = "" if self.remission_input else ", remission_input=False"
+        extra += ", level_ground=True" if self.level_ground else ""
         return f"num_classes={self.num_classes}, grid_size={self.grid.size}{extra}"
 
     def forward(self, batch: VoxelBatch) -> BackboneOutput:
