@@ -10,8 +10,24 @@ from pathlib import Path
 import numpy as np
 
 from panoptic_bench.datasets.semantickitti import make_label, write_labels, write_scan
+from panoptic_bench.dsnet.model.network import PanopticBackbone
+from panoptic_bench.dsnet.model.voxelize import CylinderGrid
 
 ROAD, CAR, BUILDING = 40, 10, 50
+
+
+def tiny_model(num_classes: int, grid: CylinderGrid, **flags: bool) -> PanopticBackbone:
+    """The tiny test network (init_size 4, 16-wide point MLP) on ``grid``; ``flags``: variant switches."""
+    return PanopticBackbone(
+        num_classes,
+        init_size=4,
+        grid=grid,
+        point_hidden=(16,),
+        point_feature_dim=16,
+        voxel_feature_dim=8,
+        offset_hidden=8,
+        **flags,
+    )
 
 
 def _box(rng: np.random.Generator, centre: np.ndarray, size: np.ndarray, n: int) -> np.ndarray:

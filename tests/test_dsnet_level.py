@@ -8,6 +8,7 @@ model gives on the levelled scan, with its offsets turned back into the scan's f
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,9 @@ from panoptic_bench.dsnet.data.level import (
 from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.model.network import PanopticBackbone
 from panoptic_bench.dsnet.model.voxelize import CylinderGrid
+
+sys.path.insert(0, str(Path(__file__).parent))
+from dsnet_tiny_world import tiny_model  # noqa: E402
 
 GRID = CylinderGrid(size=(32, 32, 8), rho_range=(1, 30), z_range=(-3, 2))
 
@@ -90,16 +94,7 @@ def test_no_plane_means_no_rotation():
 
 def _model(level: bool) -> PanopticBackbone:
     torch.manual_seed(0)
-    return PanopticBackbone(
-        5,
-        init_size=4,
-        grid=GRID,
-        point_hidden=(16,),
-        point_feature_dim=16,
-        voxel_feature_dim=8,
-        offset_hidden=8,
-        level_ground=level,
-    ).eval()
+    return tiny_model(5, GRID, level_ground=level).eval()
 
 
 def _sample(pts: np.ndarray, key: str) -> LidarSample:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -9,20 +12,14 @@ from panoptic_bench.dsnet.model.network import PanopticBackbone
 from panoptic_bench.dsnet.model.voxelize import CylinderGrid, collate
 from panoptic_bench.dsnet.training.losses import instance_centers, offset_loss, semantic_loss
 
+sys.path.insert(0, str(Path(__file__).parent))
+import dsnet_tiny_world  # noqa: E402
+
 GRID = CylinderGrid(size=(32, 32, 8), rho_range=(1, 20), z_range=(-2, 2))
 
 
 def tiny_model(num_classes: int = 4, remission_input: bool = True) -> PanopticBackbone:
-    return PanopticBackbone(
-        num_classes,
-        init_size=4,
-        grid=GRID,
-        point_hidden=(16,),
-        point_feature_dim=16,
-        voxel_feature_dim=8,
-        offset_hidden=8,
-        remission_input=remission_input,
-    )
+    return dsnet_tiny_world.tiny_model(num_classes, GRID, remission_input=remission_input)
 
 
 def scene(seed: int, n: int = 600) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
