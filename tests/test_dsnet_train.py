@@ -324,6 +324,19 @@ def test_split_by_sequence_from_the_command_line(cfg: DSNetConfig, tmp_path: Pat
     assert (run / "checkpoints" / "semantic.pt").read_bytes() == before
     assert cli([*resume, *fold[:4]]) == 0
     assert load_checkpoint(run / "checkpoints" / "semantic.pt").epoch == 2
+    # --seed overrides optim.seed, is stored, and a resume must repeat it
+    seeded = tmp_path / "seeded"
+    sargs = ["train", "--config", str(cfg_path), "--data", str(world), "--out", str(seeded)]
+    assert (
+        cli([*sargs, "--stage", "semantic", "--epochs", "1", "--seed", "7", "--no-progress"]) == 0
+    )
+    assert load_checkpoint(seeded / "checkpoints" / "semantic.pt").config.optim.seed == 7
+    assert "seed: 7" in (seeded / "config.yaml").read_text()
+    capsys.readouterr()
+    sresume = [*sargs, "--stage", "semantic", "--epochs", "2", "--resume", "--no-progress"]
+    assert cli(sresume) == 2
+    assert "optim.seed" in capsys.readouterr().err
+    assert cli([*sresume, "--seed", "7"]) == 0
     # nuScenes configs have no sequences
     nus = tmp_path / "nus.yaml"
     save_config(cfg.replace(data={"format": DatasetFormat.NUSCENES}), nus)

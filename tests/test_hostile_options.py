@@ -86,6 +86,8 @@ CASES = [
     (LABELS, "--workers", "0"),
     # DS-Net commands
     (TRAIN, "--epochs", "-1"),
+    (TRAIN, "--seed", "-1"),
+    (TRAIN, "--seed", "1.5"),
     (TRAIN, "--threads", "-1"),
     (TRAIN, "--device", "banana"),
     (TRAIN, "--train-sequences", "00,00"),

@@ -25,6 +25,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--resume", action="store_true", help="continue from the stage checkpoint")
     p.add_argument("--epochs", type=ca.nonneg_int, help="epochs per stage (overrides the config)")
+    p.add_argument(
+        "--seed",
+        type=ca.nonneg_int,
+        help="random seed of the run: scan order, point subsets, augmentation, pasting "
+        "(overrides optim.seed; stored in the checkpoints, so --resume needs the same value)",
+    )
     p.add_argument("--init", help="checkpoint to start the first stage from")
     p.add_argument("--device", type=ca.device, help="cpu or cuda (default: cuda when available)")
     p.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
@@ -61,6 +67,10 @@ def handler(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     cfg = with_sequences(load_config(args.config), args.train_sequences, args.val_sequences)
+    if args.seed is not None:
+        import dataclasses
+
+        cfg = dataclasses.replace(cfg, optim=dataclasses.replace(cfg.optim, seed=args.seed))
     paths = train(
         cfg,
         args.data,
