@@ -140,6 +140,8 @@ def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
         fast_inference=is_official(cfg),
         remission_input=m.remission_input,
         level_ground=m.level_ground,
+        shape_features=m.shape_features,
+        shape_points=cfg.augment.max_points,
     )
 
 
@@ -282,6 +284,35 @@ def load_weights(module: nn.Module, state: dict, path: Path | None, what: str) -
         raise InputError(
             f"{what} weights do not fit the network of its config: {first}", path
         ) from None
+
+
+def widen_point_inputs(state: dict, module: nn.Module) -> dict:
+    """``state`` with the point MLP's first layers padded to ``module``'s wider input.
+
+    A backbone with ``shape_features`` takes more point inputs than one without; started from
+    the narrower one's weights, the new inputs get a neutral BatchNorm (mean 0, variance 1,
+    weight 1, bias 0) and zero columns in the first Linear, so the widened network computes
+    exactly what the start did until training moves them. Other tensors are left alone (a real
+    mismatch still fails in ``load_state_dict``).
+    """
+    own = module.state_dict()
+    out = dict(state)
+    fills = {"running_mean": 0.0, "running_var": 1.0, "weight": 1.0, "bias": 0.0}
+    for key, value in state.items():
+        target = own.get(key)
+        if (
+            target is None
+            or target.shape == value.shape
+            or not key.startswith("encoder.point_mlp.")
+        ):
+            continue
+        if key.startswith("encoder.point_mlp.0.") and value.ndim == 1 and len(value) < len(target):
+            pad = torch.full((len(target) - len(value),), fills[key.rsplit(".", 1)[1]])
+            out[key] = torch.cat([value, pad.to(value.dtype)])
+        elif key == "encoder.point_mlp.1.weight" and value.shape[0] == target.shape[0]:
+            pad = value.new_zeros((value.shape[0], target.shape[1] - value.shape[1]))
+            out[key] = torch.cat([value, pad], dim=1)
+    return out
 
 
 def export_checkpoint(src: str | Path, dst: str | Path, half: bool = False) -> Path:

@@ -78,12 +78,17 @@ class ModelConfig:
     shortcut of issue 13); inference follows the checkpoint's config. ``level_ground``: every
     scan is rotated so that its fitted ground plane is level before it is voxelized, in
     training and inference (:mod:`panoptic_bench.dsnet.data.level`; no weight changes, so a
-    model trained without it can initialise one with it).
+    model trained without it can initialise one with it). ``shape_features``: the point MLP also
+    takes the 4 local shape features of :mod:`panoptic_bench.dsnet.data.shape` (linearity,
+    planarity, scattering, verticality of each point's 0.5 m cube), measured on at most
+    ``augment.max_points`` points so that training and inference see the same density; a model
+    trained without them initialises one with them (the new inputs start with zero weights).
     """
 
     variant: NetworkVariant = NetworkVariant.NOMINAL
     remission_input: bool = True
     level_ground: bool = False
+    shape_features: bool = False
     init_size: int = 32
     point_hidden: tuple[int, ...] = (64, 128, 256)
     point_feature_dim: int = 256
@@ -97,6 +102,8 @@ class ModelConfig:
         ]
         if not self.point_hidden or min(self.point_hidden) < 1:
             problems.append(f"model.point_hidden must be positive widths, got {self.point_hidden}")
+        if self.shape_features and self.variant is NetworkVariant.OFFICIAL:
+            problems.append("model.shape_features is not part of the official network")
         return problems
 
 

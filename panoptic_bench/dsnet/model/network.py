@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from panoptic_bench.dsnet.data.shape import N_SHAPE_FEATURES
 from panoptic_bench.dsnet.model.backbone import AsymmetricUNet
 from panoptic_bench.dsnet.model.heads import InstanceHead, SemanticHead
 from panoptic_bench.dsnet.model.voxelize import (
@@ -101,6 +102,12 @@ class PanopticBackbone(nn.Module):
         True: :func:`panoptic_bench.dsnet.model.forward.backbone_forward` levels every scan
         (:mod:`panoptic_bench.dsnet.data.level`) before voxelizing it and rotates the offsets
         back. The flag changes no weight; it is read by that function, not by ``forward``.
+    shape_features : bool
+        True: the point MLP takes 4 more inputs, the local shape features of
+        :mod:`panoptic_bench.dsnet.data.shape`, which
+        :func:`~panoptic_bench.dsnet.model.forward.backbone_forward` computes and appends.
+    shape_points : int
+        ``max_points`` of those features (the training scans' point count; 0: every point).
 
     Both flags are False for the nominal network and True for the official one
     (``model.variant`` of the config, see :func:`panoptic_bench.dsnet.checkpoint.build_backbone`).
@@ -120,15 +127,20 @@ class PanopticBackbone(nn.Module):
         fast_inference: bool = False,
         remission_input: bool = True,
         level_ground: bool = False,
+        shape_features: bool = False,
+        shape_points: int = 0,
     ) -> None:
         super().__init__()
+        self.shape_features = bool(shape_features)
+        self.shape_points = int(shape_points)
         self.fast_inference = bool(fast_inference)
         self.remission_input = bool(remission_input)
         self.level_ground = bool(level_ground)
         self.grid = CylinderGrid() if grid is None else grid
         self.num_classes = num_classes
+        n_in = N_POINT_FEATURES + (N_SHAPE_FEATURES if self.shape_features else 0)
         self.encoder = PointVoxelEncoder(
-            N_POINT_FEATURES, tuple(point_hidden), point_feature_dim, voxel_feature_dim
+            n_in, tuple(point_hidden), point_feature_dim, voxel_feature_dim
         )
         self.unet = AsymmetricUNet(voxel_feature_dim, init_size, spconv1_rulebooks)
         self.semantic_head = SemanticHead(self.unet.out_channels, num_classes)
@@ -142,6 +154,7 @@ class PanopticBackbone(nn.Module):
     def extra_repr(self) -> str:
         extra = "" if self.remission_input else ", remission_input=False"
         extra += ", level_ground=True" if self.level_ground else ""
+        extra += ", shape_features=True" if self.shape_features else ""
         return f"num_classes={self.num_classes}, grid_size={self.grid.size}{extra}"
 
     def forward(self, batch: VoxelBatch) -> BackboneOutput:
@@ -153,7 +166,7 @@ class PanopticBackbone(nn.Module):
             )
         if not self.remission_input:
             feats = batch.point_features.clone()
-            feats[:, -1] = 0.0
+            feats[:, N_POINT_FEATURES - 1] = 0.0  # remission (shape features follow it)
             batch = dataclasses.replace(batch, point_features=feats)
         fold = self.fast_inference and fused.inference_enabled(self.encoder)
         x = self.encoder(batch, fold_norms=fold)

@@ -233,9 +233,11 @@ class VoxelBatch:
 def collate(
     scans: Sequence[torch.Tensor | np.ndarray], grid: CylinderGrid, device: Any = None
 ) -> VoxelBatch:
-    """Voxelize scans of shape (n_i, 4) ``x, y, z, remission`` into one :class:`VoxelBatch`.
+    """Voxelize scans of shape (n_i, 4 + e) ``x, y, z, remission`` into one :class:`VoxelBatch`.
 
     Points keep their order (scan 0 first); ``device`` defaults to that of the first tensor.
+    Columns after the fourth (``e`` extra per-point features, the same count in every scan, e.g.
+    :mod:`panoptic_bench.dsnet.data.shape`) are appended to the 9 point features.
     """
     if not scans:
         raise ValueError("collate needs at least one scan")
@@ -244,10 +246,12 @@ def collate(
     feats, xyzs, idxs, batch = [], [], [], []
     for b, pts in enumerate(tensors):
         if pts.ndim != 2 or pts.shape[1] < 4:
-            raise ValueError(f"scan {b} must have shape (n, 4), got {tuple(pts.shape)}")
+            raise ValueError(f"scan {b} must have shape (n, 4 + e), got {tuple(pts.shape)}")
         pts = pts.to(device=device, dtype=torch.float32)
+        if pts.shape[1] != tensors[0].shape[1]:
+            raise ValueError(f"scan {b} has {pts.shape[1]} columns, scan 0 {tensors[0].shape[1]}")
         f, idx = point_features(pts[:, :3], pts[:, 3], grid)
-        feats.append(f)
+        feats.append(torch.cat([f, pts[:, 4:]], dim=1) if pts.shape[1] > 4 else f)
         xyzs.append(pts[:, :3])
         idxs.append(idx)
         batch.append(torch.full((pts.shape[0],), b, dtype=torch.long, device=device))

@@ -37,6 +37,7 @@ from panoptic_bench.dsnet.checkpoint import (
     build_shift,
     load_checkpoint,
     save_checkpoint,
+    widen_point_inputs,
 )
 from panoptic_bench.dsnet.config import DSNetConfig, save_config
 from panoptic_bench.dsnet.data.bank import open_bank
@@ -211,8 +212,8 @@ def _build_networks(
 ) -> tuple[nn.Module, nn.Module | None]:
     seed_everything(ctx.cfg.optim.seed)
     backbone = build_backbone(ctx.cfg, ctx.class_map.num_classes)
-    if start is not None:
-        backbone.load_state_dict(start.backbone)
+    if start is not None:  # a start without the shape inputs gets them with zero weights
+        backbone.load_state_dict(widen_point_inputs(start.backbone, backbone))
     shift = None
     if stage == "ds":
         shift = build_shift(ctx.cfg, ctx.cfg.model.init_size)
