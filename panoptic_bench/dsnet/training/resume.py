@@ -1,4 +1,6 @@
-"""What a ``--resume`` may continue: only the run the checkpoint belongs to.
+"""Where a stage starts: its own checkpoint (``--resume``), an ``--init``, or the previous stage's.
+
+What a ``--resume`` may continue: only the run the checkpoint belongs to.
 
 A stage checkpoint stores the config it was trained with. Resuming it with another config (say a
 different ``--val-sequences``, or an edited YAML) would silently train the rest of the epochs on
@@ -10,10 +12,36 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from panoptic_bench.dsnet.checkpoint import STAGES, Checkpoint, load_checkpoint
 from panoptic_bench.dsnet.config import DSNetConfig
 from panoptic_bench.errors import InputError
 
-__all__ = ["config_differences", "check_resumable"]
+__all__ = ["check_resumable", "checkpoint_path", "config_differences", "start_checkpoint"]
+
+
+def checkpoint_path(run_dir: str | Path, stage: str) -> Path:
+    """``run_dir/checkpoints/<stage>.pt``."""
+    return Path(run_dir) / "checkpoints" / f"{stage}.pt"
+
+
+def start_checkpoint(run_dir: str | Path, stage: str, init: str | Path | None) -> Checkpoint | None:
+    """The weights a fresh ``stage`` starts from: ``init``, else the previous stage's checkpoint.
+
+    None for a ``semantic`` stage without ``init`` (random weights); a missing previous stage is
+    an :class:`InputError` naming its path.
+    """
+    if init is not None:
+        return load_checkpoint(init)
+    if stage == "semantic":
+        return None
+    prev = checkpoint_path(run_dir, STAGES[STAGES.index(stage) - 1])
+    if not prev.is_file():
+        raise InputError(
+            f"stage {stage!r} starts from the previous stage's checkpoint; train it first "
+            "(--stage all) or pass an initial checkpoint",
+            prev,
+        )
+    return load_checkpoint(prev)
 
 
 def config_differences(stored: DSNetConfig, cfg: DSNetConfig) -> list[str]:

@@ -43,7 +43,7 @@ from panoptic_bench.dsnet.config import DSNetConfig, save_config
 from panoptic_bench.dsnet.data.bank import open_bank
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, TrainingSet, open_dataset
 from panoptic_bench.dsnet.model.forward import backbone_forward
-from panoptic_bench.dsnet.training.resume import check_resumable
+from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
 from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
 from panoptic_bench.errors import InputError
 from panoptic_bench.io import write_text
@@ -185,28 +185,6 @@ def _write_run_files(ctx: TrainContext, data_root: str | Path, notes: str) -> No
     write_run_meta(ctx.run_dir, meta)
 
 
-def checkpoint_path(run_dir: Path, stage: str) -> Path:
-    """``run_dir/checkpoints/<stage>.pt``."""
-    return Path(run_dir) / "checkpoints" / f"{stage}.pt"
-
-
-def _previous_checkpoint(
-    ctx: TrainContext, stage: str, init: str | Path | None
-) -> Checkpoint | None:
-    if init is not None:
-        return load_checkpoint(init)
-    if stage == "semantic":
-        return None
-    prev = checkpoint_path(ctx.run_dir, STAGES[STAGES.index(stage) - 1])
-    if not prev.is_file():
-        raise InputError(
-            f"stage {stage!r} starts from the previous stage's checkpoint; train it first "
-            "(--stage all) or pass an initial checkpoint",
-            prev,
-        )
-    return load_checkpoint(prev)
-
-
 def _build_networks(
     ctx: TrainContext, stage: str, start: Checkpoint | None
 ) -> tuple[nn.Module, nn.Module | None]:
@@ -245,7 +223,7 @@ def run_stage(
     own = load_checkpoint(path) if resume and path.is_file() else None
     if own is not None:
         check_resumable(own.config, ctx.cfg, path)
-    backbone, shift = _build_networks(ctx, stage, own or _previous_checkpoint(ctx, stage, init))
+    backbone, shift = _build_networks(ctx, stage, own or start_checkpoint(ctx.run_dir, stage, init))
     params = _trainable(stage, backbone, shift, ctx.cfg)
     optimizer = torch.optim.Adam(
         params, lr=ctx.cfg.optim.lr, weight_decay=ctx.cfg.optim.weight_decay
