@@ -16,10 +16,11 @@ of a cube's points is an unbiased estimate of the cube's, but its noise grows as
 dropped, so a model trained on thinned scans (``augment.max_points``) would see noisier features
 than it is given on a full scan. ``max_points`` removes that mismatch (the one point-density policy
 of :mod:`panoptic_bench.dsnet.data.density`): the cubes are measured on a random subset of at most
-``max_points`` points, drawn from a stream seeded by the scan's size, and every point takes the
-features of its cube (zeros where no kept point fell in it). The features do not depend on the
-point order and hardly change under rotations about the vertical axis (only the cube boundaries
-move). A model built with ``model.shape_features: true`` computes them for every scan it sees
+``max_points`` points (:func:`~panoptic_bench.dsnet.data.density.thin_indices`, the training
+scans' own subset rule, from a stream seeded by the scan's size), and every point takes the
+features of its cube (zeros where no kept point fell in it). Without ``max_points`` the features
+do not depend on the point order; they hardly change under rotations about the vertical axis
+(only the cube boundaries move). A model built with ``model.shape_features: true`` computes them for every scan it sees
 (:func:`panoptic_bench.dsnet.model.forward.backbone_forward`) in the frame it voxelizes (levelled
 when ``model.level_ground`` is on) and appends them to its 9 point features.
 
@@ -36,6 +37,8 @@ Example
 from __future__ import annotations
 
 import numpy as np
+
+from panoptic_bench.dsnet.data.density import thin_indices
 
 __all__ = ["N_SHAPE_FEATURES", "SHAPE_FEATURE_NAMES", "shape_features"]
 
@@ -82,9 +85,9 @@ def shape_features(
     uniq, cube = np.unique(keys, axis=0, return_inverse=True)
     cube = cube.reshape(-1)
     m = len(uniq)
-    kept = np.arange(n)
-    if 0 < max_points < n:
-        kept = np.random.default_rng(n).choice(n, max_points, replace=False)
+    kept = thin_indices(n, max_points, np.random.default_rng(n))  # the training subset rule
+    if kept is None:
+        kept = np.arange(n)
     local = xyz[kept] - (keys[kept] + 0.5) * cell  # small numbers: stable second moments
     c = cube[kept]
     counts = np.bincount(c, minlength=m).astype(np.float64)
