@@ -100,6 +100,11 @@ class WorldProfile:
       ``lead_car_prob``: a car ahead in the ego lane; ``ego_offset``: (low, high) lateral offset (m)
       of the ego from the centre of its lane towards the road centre (it stays 0.3 m inside its
       lane; empty = the lane centre), drawn per sequence from its own random stream;
+      ``ego_inner_lane``: probability that on a street with two lanes per side the ego drives
+      in the inner lane (traffic then passes in the outer one), its own stream;
+      ``side_street_prob``: probability that a frontage segment of 15 m or more opens onto a
+      side street (a road ``side_street_width`` wide running away from the street to 60 m,
+      flanked by sidewalks, cutting through the segment's frontage), its own stream;
       ``parked_fill``: fraction of parking strips filled with cars;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
@@ -160,6 +165,9 @@ class WorldProfile:
     traffic_gap: tuple[float, float] = (25.0, 90.0)
     lead_car_prob: float = 0.5
     ego_offset: tuple[float, ...] = ()
+    ego_inner_lane: float = 0.0
+    side_street_prob: float = 0.0
+    side_street_width: tuple[float, float] = (6.0, 10.0)
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -187,6 +195,10 @@ class WorldProfile:
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
             "parking_prob": 0.0 <= self.parking_prob <= 1.0,
             "parking_road": 0.0 <= self.parking_road <= 1.0,
+            "ego_inner_lane": 0.0 <= self.ego_inner_lane <= 1.0,
+            "side_street_prob": 0.0 <= self.side_street_prob <= 1.0,
+            "side_street_width": 3.0 <= self.side_street_width[0]
+            and self.side_street_width[1] <= 20.0,
             "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
             "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,

@@ -27,6 +27,8 @@ Conventions (the same estimator runs on real and synthetic scans, so only the co
   the sensor to the first ground point (of the ground classes) that is neither road nor parking,
   to the right and to the left; the median over the slabs (cars and people on the road are not
   ground, so they do not end it);
+- **road far to the side**: the share of road among the ground points 6-12 m to the right and
+  to the left, 5-15 m ahead and behind (side streets, inner lanes, wide roads);
 - heights of sidewalk and terrain are median residuals of their points 3-20 m away from that
   plane; the ego hole is the minimum horizontal range of ground points (road, parking, sidewalk, other-ground,
   terrain) in each of 8 azimuth sectors (45 degrees,
@@ -77,6 +79,8 @@ MEASURES: dict[str, tuple[str, str]] = {
     "car_y": ("layout: car median lateral distance (m)", "median"),
     "road_right": ("layout: road edge to the right of the sensor (m)", "median"),
     "road_left": ("layout: road edge to the left of the sensor (m)", "median"),
+    "road_far_right_pct": ("layout: % road among the ground 6-12 m to the right", "mean"),
+    "road_far_left_pct": ("layout: % road among the ground 6-12 m to the left", "mean"),
     "car_range": ("layout: car points median range (m)", "median"),
     "near5_pct": ("layout: % of points under 5 m", "mean"),
     "far_max": ("layout: farthest point (m)", "median"),
@@ -195,6 +199,16 @@ def _road_edges(x, y, raw: np.ndarray) -> tuple[float, float]:
     return edges[0], edges[1]
 
 
+def _road_far(x, y, raw: np.ndarray) -> tuple[float, float]:
+    """% road among the ground points 6-12 m to the right / left, 5-15 m ahead and behind."""
+    ground = np.isin(raw, GROUND) & (np.abs(x) >= 5) & (np.abs(x) < 15)
+    out = []
+    for side in (-1, 1):
+        sel = ground & (side * y >= 6) & (side * y < 12)
+        out.append(_pct(raw[sel] == ROAD) if sel.any() else float("nan"))
+    return out[0], out[1]
+
+
 def _jitter(x, y, z, r, mask: np.ndarray) -> float:
     """Robust std (mm) of the second z difference over consecutive in-class triples, 3-15 m."""
     if mask.size < 3:
@@ -292,6 +306,7 @@ def scan_measures(
         m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
     m["verge_terrain_pct"] = _beside_road_terrain(x, y, r, raw)
     m["road_right"], m["road_left"] = _road_edges(x, y, raw)
+    m["road_far_right_pct"], m["road_far_left_pct"] = _road_far(x, y, raw)
     for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
         m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
     ring = recover_rings(points[:, :3])

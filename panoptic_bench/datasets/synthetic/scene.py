@@ -227,6 +227,10 @@ def generate_scene(
     x_range = (-MARGIN, speed * duration + MARGIN)
     static, ground, plan = build_street(rng, x_range, load_profile(profile))
     ego_lane = plan.lanes_per_side - 1
+    if plan.profile.ego_inner_lane and ego_lane > 0:
+        # its own stream, spawned before ego_offset's (which moves only when this key is set)
+        if rng.spawn(1)[0].random() < plan.profile.ego_inner_lane:
+            ego_lane = 0
     things: list[Thing] = []
     _parked_rows(rng, plan, things)
     _sidewalk(rng, plan, x_range, things)

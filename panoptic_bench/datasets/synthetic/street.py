@@ -3,7 +3,8 @@
 A straight street along the world x axis, centred on ``y = 0``: a road with lanes and lane
 markings, parking strips in some segments, raised sidewalks with kerbs, and behind them a
 frontage chosen per segment (building facades, green areas with terrain, bushes and trees,
-fences, paved plazas of other-ground), with a second row of buildings further back. Lamp poles,
+fences, paved plazas of other-ground), with a second row of buildings further back, and
+optionally side streets cut through it (:mod:`.side_streets`). Lamp poles,
 traffic signs on poles and street trees stand on the sidewalks. The returned
 :class:`StreetPlan` says where things may be placed (parking strips, sidewalks, lanes).
 """
@@ -17,6 +18,7 @@ import numpy as np
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
 from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Primitives
+from panoptic_bench.datasets.synthetic.side_streets import open_side_street
 
 __all__ = ["StreetPlan", "build_street", "curb_at", "kerb_at"]
 
@@ -383,13 +385,18 @@ def build_street(
     verge_rng = rng.spawn(1)[0] if profile.verge_prob else None
     # so do the road-labelled parking strips (spawned after the verges: their stream is unchanged)
     strip_rng = rng.spawn(1)[0] if profile.parking_road else None
+    # and so do the side streets (spawned last: the streams above are unchanged)
+    side_rng = rng.spawn(1)[0] if profile.side_street_prob else None
     for side in (-1, 1):
         x = x0
         while x < x1:
             length = rng.uniform(15.0, 40.0)
             if x1 - (x + length) < 10.0:
                 length = x1 - x
+            start = len(b.rows)
             _segment(b, gm, rng, plan, side, x, x + length, verge_rng, strip_rng)
+            if side_rng is not None:
+                open_side_street(b, start, gm, plan, side_rng, side, x, x + length)
             x += length
     _furniture(b, rng, plan, x0, x1)
     if profile.clutter_spacing:
