@@ -88,7 +88,12 @@ def open_side_street(
         Whether a side street was opened.
     """
     prof = plan.profile
-    u, width, walk, at = rng.random(), rng.uniform(*prof.side_street_width), rng.random(), rng.random()
+    u, width, walk, at = (
+        rng.random(),
+        rng.uniform(*prof.side_street_width),
+        rng.random(),
+        rng.random(),
+    )
     if u >= prof.side_street_prob:
         return False
     walk = float(min(prof.sidewalk[0] + walk * (prof.sidewalk[1] - prof.sidewalk[0]), 3.0))
