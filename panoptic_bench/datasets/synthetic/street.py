@@ -385,8 +385,7 @@ def build_street(
     verge_rng = rng.spawn(1)[0] if profile.verge_prob else None
     # so do the road-labelled parking strips (spawned after the verges: their stream is unchanged)
     strip_rng = rng.spawn(1)[0] if profile.parking_road else None
-    # and so do the side streets (spawned last: the streams above are unchanged)
-    side_rng = rng.spawn(1)[0] if profile.side_street_prob else None
+    side_rng = rng.spawn(1)[0] if profile.side_street_prob else None  # spawned last: same as above
     for side in (-1, 1):
         x = x0
         while x < x1:
