@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from panoptic_bench.datasets.synthetic.ground import GroundMap
+from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
 from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Primitives
 from panoptic_bench.datasets.synthetic.side_streets import open_side_street
@@ -27,7 +28,6 @@ OTHER_STRUCTURE, OTHER_OBJECT = 52, 99
 BUILDING, FENCE, VEGETATION, TRUNK, TERRAIN, POLE, SIGN = 50, 51, 70, 71, 72, 80, 81
 KERB = 0.14
 PARKING_WIDTH = 2.3
-ROAD_TEXTURE = 0.025  # std of the road paint's reflectivity per 0.2 m cell
 
 
 @dataclass
@@ -316,36 +316,6 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
             x += seg
 
 
-def _markings(gm: GroundMap, rng, plan: StreetPlan, x0: float, x1: float) -> None:
-    gm.paint(x0, x1, -plan.road_half, plan.road_half, ROAD, plan.profile.road_reflect)
-    noise = rng.normal(0.0, ROAD_TEXTURE, size=gm.reflect.shape).astype(np.float32)
-    gm.reflect += np.where(gm.label == ROAD, noise, 0.0).astype(np.float32)
-    lines = [0.0] + [
-        k * plan.lane_width * s for k in range(1, plan.lanes_per_side) for s in (-1, 1)
-    ]
-    for y in lines:
-        for xd in np.arange(x0, x1, 9.0):
-            gm.paint(xd, xd + 3.0, y - 0.075, y + 0.075, None, 0.75)
-    for s in (-1, 1):
-        y = s * (plan.lanes_per_side * plan.lane_width + 0.1)
-        gm.paint(x0, x1, y - 0.06, y + 0.06, None, 0.7)
-
-
-def _dark_patches(gm: GroundMap, rng, plan: StreetPlan, x0: float, x1: float) -> None:
-    """Dark asphalt (repairs, wet or oily patches, tyre marks) on the road and parking strips.
-
-    Rectangles 1-6 m long and 0.5-3 m wide with reflectivity 0.04-0.2 cover about
-    ``profile.road_dark`` of the carriageway and parking area (real near road: ~4 % of returns
-    exactly 0, 10th percentile of remission 0.10; a uniform synthetic road has neither).
-    """
-    y_max = plan.road_half + PARKING_WIDTH
-    mean_area = 3.5 * 1.75
-    for _ in range(rng.poisson(plan.profile.road_dark * (x1 - x0) * 2 * y_max / mean_area)):
-        length, width = rng.uniform(1.0, 6.0), rng.uniform(0.5, 3.0)
-        x, y = rng.uniform(x0, x1), rng.uniform(-y_max, y_max)
-        gm.paint(x, x + length, y - width / 2, y + width / 2, None, rng.uniform(0.04, 0.2))
-
-
 def build_street(
     rng: np.random.Generator, x_range: tuple[float, float], profile: WorldProfile = CLASSIC
 ) -> tuple[Primitives, GroundMap, StreetPlan]:
@@ -376,9 +346,9 @@ def build_street(
     sidewalk = float(rng.uniform(*profile.sidewalk))
     plan = StreetPlan(lane_w, lanes, lanes * lane_w + shoulder, sidewalk, profile=profile)
     gm = GroundMap.blank((x0 - 5.0, x1 + 5.0), (-70.0, 70.0))
-    _markings(gm, rng, plan, x0 - 5.0, x1 + 5.0)
+    markings(gm, rng, plan, x0 - 5.0, x1 + 5.0)
     if profile.road_dark:
-        _dark_patches(gm, rng, plan, x0 - 5.0, x1 + 5.0)
+        dark_patches(gm, rng, plan, x0 - 5.0, x1 + 5.0, plan.road_half + PARKING_WIDTH)
     b = _Builder()
     # the verges draw from their own stream (spawning does not advance ``rng``): a world with
     # verges holds the same streets, objects and sensor draws as the same world without them
