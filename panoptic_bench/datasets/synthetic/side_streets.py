@@ -1,13 +1,16 @@
 """Side streets: a road running away from the street through one frontage segment.
 
-Real streets are not closed corridors: in the 55 real SemanticKITTI scans 26 % of the ground
-6-12 m to the right of the sensor (5-15 m ahead and behind) is road (side streets, inner
-lanes, junctions), where the straight synthetic street had none. :func:`open_side_street`
+Real streets are not closed corridors: in the 55 real SemanticKITTI scans about a quarter of
+the ground 6-12 m to the right of the sensor (5-15 m ahead and behind) is road (side streets,
+inner lanes, junctions), where the straight synthetic street had none. :func:`open_side_street`
 cuts a mouth ``side_street_width`` wide plus a sidewalk on each side out of a segment that has
 just been built: every primitive of the segment is clipped away from the mouth (boxes are cut
 along x, other shapes inside it are dropped), the road is painted from the carriageway edge out
 to :data:`REACH`, two sidewalks flank it, the parking strip is split, and things standing in
-the mouth stand on the road (a kerb height of 0 is listed first for it in the plan).
+the mouth stand on the road (a kerb height of 0 is listed first for it in the plan). Known
+simplifications: the side street's road has the road's base reflectivity without the main
+road's texture and dark patches, and its sidewalks take the segment's kerb height, which is
+the bank's height (up to ``verge_raise``) where the segment is a raised grass verge.
 """
 
 from __future__ import annotations
