@@ -111,3 +111,29 @@ def test_road_far_to_the_side_by_hand():
     assert "road_far_right_pct" in MEASURES and "road_far_left_pct" in MEASURES
     assert m["road_far_right_pct"] == pytest.approx(75.0, abs=0.5)
     assert m["road_far_left_pct"] == 0.0
+
+
+def test_out_of_range_value_in_a_profile_file_names_the_file(tmp_path, capsys):
+    from panoptic_bench.cli import main
+    from panoptic_bench.datasets.synthetic.profile import load_profile
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("base: realistic\nside_street_prob: 1.5\n")
+    with pytest.raises(InputError, match="side_street_prob") as err:
+        load_profile(str(bad))
+    assert err.value.path == bad
+    out = tmp_path / "never"
+    argv = [
+        "synth",
+        "semantickitti",
+        "--out",
+        str(out),
+        "--profile",
+        str(bad),
+        "--sequences",
+        "00:1",
+    ]
+    assert main(argv) == 2 and not out.exists()
+    msg = capsys.readouterr().err
+    assert str(bad) in msg and "side_street_prob = 1.5 is out of range" in msg
+    assert "Traceback" not in msg

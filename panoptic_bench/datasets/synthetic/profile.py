@@ -274,7 +274,12 @@ class WorldProfile:
                 f"unknown world profile key {unknown[0]!r}; known keys: {', '.join(hints)}", source
             )
         values = {k: _coerce(hints[k], v, k, source) for k, v in mapping.items()}
-        return dataclasses.replace(base if base is not None else CLASSIC, **values)
+        try:
+            return dataclasses.replace(base if base is not None else CLASSIC, **values)
+        except InputError as err:  # a value out of range: name the file it came from
+            if err.path is not None or source is None:
+                raise
+            raise InputError(err.message, source) from None
 
 
 def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
