@@ -102,8 +102,8 @@ class WorldProfile:
       lane; empty = the lane centre), drawn per sequence from its own random stream;
       ``ego_inner_lane``: probability that on a street with two lanes per side the ego drives
       in the inner lane (traffic then passes in the outer one), its own stream;
-      ``side_street_prob``: probability that a frontage segment of 15 m or more opens onto a
-      side street (a road ``side_street_width`` wide running away from the street to 60 m,
+      ``side_street_prob``: probability that a frontage segment (15-40 m; skipped when shorter
+      than the mouth + 2 m) opens onto a side street (a road ``side_street_width`` wide running away from the street to 60 m,
       flanked by sidewalks, cutting through the segment's frontage), its own stream;
       ``parked_fill``: fraction of parking strips filled with cars;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter

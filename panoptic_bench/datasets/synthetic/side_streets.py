@@ -9,8 +9,10 @@ along x, other shapes inside it are dropped), the road is painted from the carri
 to :data:`REACH`, two sidewalks flank it, the parking strip is split, and things standing in
 the mouth stand on the road (a kerb height of 0 is listed first for it in the plan). Known
 simplifications: the side street's road has the road's base reflectivity without the main
-road's texture and dark patches, and its sidewalks take the segment's kerb height, which is
-the bank's height (up to ``verge_raise``) where the segment is a raised grass verge.
+road's texture and dark patches; its sidewalks take the segment's kerb height, which is the
+bank's height (up to ``verge_raise``) where the segment is a raised grass verge; and the street
+furniture, clutter and pedestrians placed after the street is built (lamp posts, signs, street
+trees, bins, people on the sidewalk line) may stand in the mouth near the main street's kerb.
 """
 
 from __future__ import annotations
