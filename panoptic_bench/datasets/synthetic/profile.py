@@ -105,6 +105,9 @@ class WorldProfile:
       ``side_street_prob``: probability that a frontage segment (15-40 m; skipped when shorter
       than the mouth + 2 m) opens onto a side street (a road ``side_street_width`` wide running away from the street to 60 m,
       flanked by sidewalks, cutting through the segment's frontage), its own stream;
+      ``fence_height``: (low, high) height (m) of a fence frontage's fence; ``fence_lattice``:
+      probability that such a fence is a see-through lattice of thin bars instead of a solid
+      panel (:mod:`~panoptic_bench.datasets.synthetic.fences`), its own stream;
       ``parked_fill``: fraction of parking strips filled with cars;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
@@ -168,6 +171,8 @@ class WorldProfile:
     ego_inner_lane: float = 0.0
     side_street_prob: float = 0.0
     side_street_width: tuple[float, float] = (6.0, 10.0)
+    fence_height: tuple[float, float] = (1.0, 2.0)
+    fence_lattice: float = 0.0
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -199,6 +204,8 @@ class WorldProfile:
             "side_street_prob": 0.0 <= self.side_street_prob <= 1.0,
             "side_street_width": 3.0 <= self.side_street_width[0]
             and self.side_street_width[1] <= 20.0,
+            "fence_height": 0.2 <= self.fence_height[0] and self.fence_height[1] <= 4.0,
+            "fence_lattice": 0.0 <= self.fence_lattice <= 1.0,
             "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
             "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from panoptic_bench.datasets.synthetic.fences import build_fence
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
@@ -153,6 +154,7 @@ def _segment(
     x1: float,
     verge_rng: np.random.Generator | None = None,
     strip_rng: np.random.Generator | None = None,
+    fence_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -208,9 +210,9 @@ def _segment(
                 rough=prof.terrain_rough,
             )
         if kind == "fence":
-            fh = rng.uniform(1.0, 2.0)
-            yf = side * (y_front + 0.3)
-            b.box(x0 + 0.5, x1 - 0.5, yf, yf + side * 0.06, 0.0, fh, FENCE, rng.uniform(0.2, 0.5))
+            fh = rng.uniform(*prof.fence_height)
+            yf, refl = side * (y_front + 0.3), rng.uniform(0.2, 0.5)
+            build_fence(b, x0 + 0.5, x1 - 0.5, yf, side, fh, refl, fence_rng, prof.fence_lattice)
         else:
             hedge = rng.random() < 0.5
             if hedge:
@@ -355,7 +357,8 @@ def build_street(
     verge_rng = rng.spawn(1)[0] if profile.verge_prob else None
     # so do the road-labelled parking strips (spawned after the verges: their stream is unchanged)
     strip_rng = rng.spawn(1)[0] if profile.parking_road else None
-    side_rng = rng.spawn(1)[0] if profile.side_street_prob else None  # spawned last: same as above
+    side_rng = rng.spawn(1)[0] if profile.side_street_prob else None  # spawned after: same as above
+    fence_rng = rng.spawn(1)[0] if profile.fence_lattice else None  # spawned last: same as above
     for side in (-1, 1):
         x = x0
         while x < x1:
@@ -363,7 +366,7 @@ def build_street(
             if x1 - (x + length) < 10.0:
                 length = x1 - x
             start = len(b.rows)
-            _segment(b, gm, rng, plan, side, x, x + length, verge_rng, strip_rng)
+            _segment(b, gm, rng, plan, side, x, x + length, verge_rng, strip_rng, fence_rng)
             if side_rng is not None:
                 open_side_street(b, start, gm, plan, side_rng, side, x, x + length)
             x += length
