@@ -29,7 +29,10 @@ Conventions (the same estimator runs on real and synthetic scans, so only the co
   ground, so they do not end it);
 - **road far to the side**: the share of road among the ground points 6-12 m to the right and
   to the left, 5-15 m ahead and behind (side streets, inner lanes, wide roads);
-- heights of sidewalk and terrain are median residuals of their points 3-20 m away from that
+- **fence see-through**: the share of fence points under 30 m whose previous or next point in
+  recording order (the neighbouring column of the same ring) is more than 1 m farther (the laser
+  passing through a lattice or mesh to what stands behind), each neighbour counted once;
+- heights of sidewalk, terrain and fence are median residuals of their points 3-20 m away from that
   plane; the ego hole is the minimum horizontal range of ground points (road, parking, sidewalk, other-ground,
   terrain) in each of 8 azimuth sectors (45 degrees,
   sector 0 centred on +x, counter-clockwise).
@@ -81,6 +84,11 @@ MEASURES: dict[str, tuple[str, str]] = {
     "road_left": ("layout: road edge to the left of the sensor (m)", "median"),
     "road_far_right_pct": ("layout: % road among the ground 6-12 m to the right", "mean"),
     "road_far_left_pct": ("layout: % road among the ground 6-12 m to the left", "mean"),
+    "fence_h": ("content: fence height above the road, median of its points 3-20 m (m)", "median"),
+    "fence_through_pct": (
+        "content: % of fence points whose ring neighbour is > 1 m farther",
+        "mean",
+    ),
     "car_range": ("layout: car points median range (m)", "median"),
     "near5_pct": ("layout: % of points under 5 m", "mean"),
     "far_max": ("layout: farthest point (m)", "median"),
@@ -101,7 +109,7 @@ HISTOGRAMS = {
 RANGE_BINS = np.arange(0.0, 85.0, 5.0)
 N_RINGS = 64
 N_SECTORS = 8
-ROAD, PARKING, SIDEWALK, TERRAIN, CAR, BUILDING = 40, 44, 48, 72, 10, 50
+ROAD, PARKING, SIDEWALK, TERRAIN, CAR, BUILDING, FENCE = 40, 44, 48, 72, 10, 50, 51
 CLUTTER = (52, 99)
 GROUND = (40, 44, 48, 49, 72)
 _MOVING_CAR = 252
@@ -209,6 +217,19 @@ def _road_far(x, y, raw: np.ndarray) -> tuple[float, float]:
     return out[0], out[1]
 
 
+def _see_through(r: np.ndarray, fence: np.ndarray) -> float:
+    """% of fence points' recording-order neighbours (under 30 m) that lie > 1 m farther."""
+    if r.size < 2:
+        return float("nan")
+    near = fence & (r < 30.0)
+    behind = []
+    for a, b in ((slice(1, None), slice(None, -1)), (slice(None, -1), slice(1, None))):
+        sel = near[a]
+        behind.append(r[b][sel] - r[a][sel] > 1.0)
+    both = np.concatenate(behind)
+    return _pct(both) if both.size else float("nan")
+
+
 def _jitter(x, y, z, r, mask: np.ndarray) -> float:
     """Robust std (mm) of the second z difference over consecutive in-class triples, 3-15 m."""
     if mask.size < 3:
@@ -290,7 +311,7 @@ def scan_measures(
     resid = np.zeros(0)
     nan = float("nan")
     m.update(road_z=nan, pitch_deg=nan, roll_deg=nan, road_rough_cm=nan)
-    m.update(sidewalk_h=nan, terrain_h=nan)
+    m.update(sidewalk_h=nan, terrain_h=nan, fence_h=nan)
     if coef is not None:
         a, b, c = coef
         m.update(
@@ -304,6 +325,8 @@ def scan_measures(
         near = (r >= 3) & (r <= 20)
         m["sidewalk_h"] = _median(resid[near & (raw == SIDEWALK)])
         m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
+        m["fence_h"] = _median(resid[near & (raw == FENCE)])
+    m["fence_through_pct"] = _see_through(r, raw == FENCE)
     m["verge_terrain_pct"] = _beside_road_terrain(x, y, r, raw)
     m["road_right"], m["road_left"] = _road_edges(x, y, raw)
     m["road_far_right_pct"], m["road_far_left_pct"] = _road_far(x, y, raw)
