@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from panoptic_bench.datasets.synthetic.raw_ids import FENCE
 from panoptic_bench.datasets.synthetic.shapes import BOX
 
 __all__ = ["POST_SPACING", "build_fence"]
 
-#: Raw SemanticKITTI id of the fence label.
-_FENCE = 51
 #: Thickness of a solid panel (m).
 _PANEL = 0.06
 #: Spacing range of a lattice's posts (m).
@@ -61,7 +60,7 @@ def build_fence(
         0.02-0.04 m wide every 0.12-0.3 m, so that most rays pass between the bars.
     """
     if not (lattice_prob and lattice_rng.random() < lattice_prob):
-        b.box(x0, x1, y, y + side * _PANEL, 0.0, height, _FENCE, reflect)
+        b.box(x0, x1, y, y + side * _PANEL, 0.0, height, FENCE, reflect)
         return
     rng = lattice_rng
     ys = sorted((y, y + side * 0.04))
@@ -70,9 +69,9 @@ def build_fence(
     spacing = float(rng.uniform(0.12, 0.3))
     post = float(rng.uniform(*POST_SPACING))
     rail = min(0.05, height / 4)
-    b.box(x0, x1, y, y + side * 0.05, height - rail, height, _FENCE, reflect)
+    b.box(x0, x1, y, y + side * 0.05, height - rail, height, FENCE, reflect)
     for xp in np.arange(x0, x1 + 1e-9, post):
-        b.add(BOX, (xp, yc, height / 2), (0.04, 0.04, height / 2), _FENCE, reflect)
+        b.add(BOX, (xp, yc, height / 2), (0.04, 0.04, height / 2), FENCE, reflect)
     half = (height - rail) / 2
     for xb in np.arange(x0 + spacing / 2, x1, spacing):
-        b.add(BOX, (xb, yc, half), (bar_w / 2, hy, half), _FENCE, reflect)
+        b.add(BOX, (xb, yc, half), (bar_w / 2, hy, half), FENCE, reflect)

@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 
 from panoptic_bench.datasets.synthetic.ground import GroundMap
+from panoptic_bench.datasets.synthetic.raw_ids import ROAD
 
 __all__ = ["ROAD_TEXTURE", "dark_patches", "markings"]
 
-ROAD = 40
 ROAD_TEXTURE = 0.025  # std of the road paint's reflectivity per 0.2 m cell
 
 

@@ -42,6 +42,24 @@ from __future__ import annotations
 
 import numpy as np
 
+from panoptic_bench.datasets.synthetic.raw_ids import (
+    BUILDING,
+    CAR,
+    FENCE,
+    MOVING_CAR,
+    OTHER_GROUND,
+    OTHER_OBJECT,
+    OTHER_STRUCTURE,
+    OTHER_VEHICLES,
+    PARKING,
+    PEOPLE,
+    POLE,
+    ROAD,
+    SIDEWALK,
+    SIGN,
+    TERRAIN,
+)
+
 __all__ = ["HISTOGRAMS", "MEASURES", "aggregate", "recover_rings", "scan_measures"]
 
 #: Scalar measures: key -> (label, aggregation over scans: "mean" or "median").
@@ -109,14 +127,8 @@ HISTOGRAMS = {
 RANGE_BINS = np.arange(0.0, 85.0, 5.0)
 N_RINGS = 64
 N_SECTORS = 8
-ROAD, PARKING, SIDEWALK, TERRAIN, CAR, BUILDING, FENCE = 40, 44, 48, 72, 10, 50, 51
-CLUTTER = (52, 99)
-GROUND = (40, 44, 48, 49, 72)
-_MOVING_CAR = 252
-#: Raw ids of the non-car vehicles, of people and bicycles, of poles and of traffic signs.
-_OTHER_VEHICLES = (13, 15, 18, 20, 257, 258, 259)
-_PEOPLE = (11, 30, 31, 32, 253, 254, 255)
-_POLE, _SIGN = 80, 81
+CLUTTER = (OTHER_STRUCTURE, OTHER_OBJECT)
+GROUND = (ROAD, PARKING, SIDEWALK, OTHER_GROUND, TERRAIN)
 
 
 def recover_rings(xyz: np.ndarray) -> np.ndarray:
@@ -171,7 +183,7 @@ def _plane(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray | None:
 def _beside_road_terrain(x, y, r, raw: np.ndarray, cell: float = 0.5) -> float:
     """% terrain among the non-road ground points 3-20 m away next to a road cell."""
     road = raw == ROAD
-    ground = np.isin(raw, (44, 48, 49, TERRAIN)) & (r >= 3) & (r <= 20)
+    ground = np.isin(raw, (PARKING, SIDEWALK, OTHER_GROUND, TERRAIN)) & (r >= 3) & (r <= 20)
     if not road.any() or not ground.any():
         return float("nan")
     n = int(np.ceil(2 * 80.0 / cell)) + 3
@@ -275,10 +287,10 @@ def scan_measures(
     rem = points[:, 3].astype(np.float64)
     raw = (labels & 0xFFFF).astype(np.int64)
     r = np.hypot(x, y)
-    road, car = raw == ROAD, (raw == CAR) | (raw == _MOVING_CAR)
+    road, car = raw == ROAD, (raw == CAR) | (raw == MOVING_CAR)
     dark = rem < 0.1
     near = (r >= 3) & (r < 20)
-    other_vehicle = np.isin(raw, _OTHER_VEHICLES)
+    other_vehicle = np.isin(raw, OTHER_VEHICLES)
     m: dict[str, float] = {
         "rem_zero_pct": _pct(rem == 0),
         "rem_dark_pct": _pct(dark),
@@ -289,9 +301,9 @@ def scan_measures(
         "rem_car_zero_pct": _pct(rem[car] == 0),
         "rem_other_vehicle_median": _median(rem[other_vehicle & near]),
         "rem_other_vehicle_zero_pct": _pct(rem[other_vehicle] == 0),
-        "rem_people_median": _median(rem[np.isin(raw, _PEOPLE) & near]),
-        "rem_pole_median": _median(rem[(raw == _POLE) & near]),
-        "rem_sign_median": _median(rem[(raw == _SIGN) & near]),
+        "rem_people_median": _median(rem[np.isin(raw, PEOPLE) & near]),
+        "rem_pole_median": _median(rem[(raw == POLE) & near]),
+        "rem_sign_median": _median(rem[(raw == SIGN) & near]),
         "rem_road_lt5": _median(rem[road & (r < 5)]),
         "rem_road_20_40": _median(rem[road & (r >= 20) & (r < 40)]),
         "rem_road_gt40": _median(rem[road & (r >= 40)]),

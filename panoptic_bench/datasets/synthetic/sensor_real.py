@@ -17,6 +17,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from panoptic_bench.datasets.synthetic.profile import REAL_HDL64E_ELEVATIONS, WorldProfile
+from panoptic_bench.datasets.synthetic.raw_ids import (
+    CAR,
+    MOVING_CAR,
+    OTHER_VEHICLES,
+    PEOPLE,
+    POLE,
+    SIGN,
+)
 from panoptic_bench.datasets.synthetic.raycast import GROUND, cast, ray_directions
 from panoptic_bench.datasets.synthetic.scene import Scene
 from panoptic_bench.datasets.synthetic.shapes import normals
@@ -24,12 +32,12 @@ from panoptic_bench.datasets.synthetic.shapes import normals
 __all__ = ["SensorState", "rough_field", "sensor_state", "sweep_realistic", "tilt_matrix"]
 
 #: Raw ids whose primitives are vehicle bodies / glass (dark paint is common).
-_VEHICLES = (10, 13, 15, 18, 20, 252, 257, 258, 259)
+_VEHICLES = (CAR, MOVING_CAR, *OTHER_VEHICLES)
 #: The vehicles that are not cars (``rem_dark_other``).
-_OTHER_VEHICLES = (13, 15, 18, 20, 257, 258, 259)
+_OTHER_VEHICLES = OTHER_VEHICLES
 #: Raw ids scaled by ``rem_gain_people``, ``rem_gain_pole``, ``rem_gain_sign``.
-_PEOPLE = (11, 30, 31, 32, 253, 254, 255)
-_POLE, _SIGN = (80,), (81,)
+_PEOPLE = PEOPLE
+_POLE, _SIGN = (POLE,), (SIGN,)
 
 
 @dataclass(frozen=True)

@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from panoptic_bench.datasets.synthetic.raw_ids import ROAD, SIDEWALK
 from panoptic_bench.datasets.synthetic.shapes import BOX
 
 __all__ = ["REACH", "clip_rows", "open_side_street"]
 
 #: How far from the centre line the side street runs (m).
 REACH = 60.0
-#: Raw SemanticKITTI ids painted / built here.
-_ROAD, _SIDEWALK = 40, 48
 _MIN_PIECE = 0.05
 
 
@@ -110,9 +109,9 @@ def open_side_street(
     builder.rows[start:] = clip_rows(builder.rows[start:], xa, xb)
     y_curb, kerb = plan.curb[-1][3], plan.kerb[-1][3]
     ys = sorted((side * plan.road_half, side * REACH))
-    gm.paint(xa + walk, xb - walk, ys[0], ys[1], _ROAD, prof.road_reflect)
+    gm.paint(xa + walk, xb - walk, ys[0], ys[1], ROAD, prof.road_reflect)
     for a in (xa, xb - walk):
-        builder.box(a, a + walk, side * y_curb, side * REACH, 0.0, kerb, _SIDEWALK,
+        builder.box(a, a + walk, side * y_curb, side * REACH, 0.0, kerb, SIDEWALK,
                     prof.sidewalk_reflect)  # fmt: skip
     strips = []
     for s, a, b in plan.parking:

@@ -19,14 +19,25 @@ from panoptic_bench.datasets.synthetic.fences import build_fence
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
+from panoptic_bench.datasets.synthetic.raw_ids import (
+    BUILDING,
+    OTHER_GROUND,
+    OTHER_OBJECT,
+    OTHER_STRUCTURE,
+    PARKING,
+    POLE,
+    ROAD,
+    SIDEWALK,
+    SIGN,
+    TERRAIN,
+    TRUNK,
+    VEGETATION,
+)
 from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Primitives
 from panoptic_bench.datasets.synthetic.side_streets import open_side_street
 
 __all__ = ["StreetPlan", "build_street", "curb_at", "kerb_at"]
 
-ROAD, PARKING, SIDEWALK, OTHER_GROUND = 40, 44, 48, 49
-OTHER_STRUCTURE, OTHER_OBJECT = 52, 99
-BUILDING, FENCE, VEGETATION, TRUNK, TERRAIN, POLE, SIGN = 50, 51, 70, 71, 72, 80, 81
 KERB = 0.14
 PARKING_WIDTH = 2.3
 
