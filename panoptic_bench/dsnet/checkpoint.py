@@ -55,6 +55,7 @@ SHIPPED: dict[str, str] = {
     "synthetic-realistic": "dsnet_synthetic_realistic.pt",
     "synthetic-materials-road": "dsnet_synthetic_materials_road.pt",
     "synthetic-low-crowns": "dsnet_synthetic_low_crowns.pt",
+    "synthetic-fences": "dsnet_synthetic_fences.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
