@@ -174,6 +174,9 @@ TRAINED_ON = {
     "dsnet_synthetic_fences.pt": (
         "trained on the synthetic worlds only (realistic, then realistic-low-crowns-fences)"
     ),
+    "dsnet_synthetic_low_fences.pt": (
+        "trained on the synthetic worlds only (realistic, then realistic-low-crowns-low-fences)"
+    ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
     "dsnet_semantickitti_cpu.pt": (
         "trained on real scans of sequences 00-07, 09, 10 + rare instances pasted from synthetic streets"

@@ -56,6 +56,7 @@ SHIPPED: dict[str, str] = {
     "synthetic-materials-road": "dsnet_synthetic_materials_road.pt",
     "synthetic-low-crowns": "dsnet_synthetic_low_crowns.pt",
     "synthetic-fences": "dsnet_synthetic_fences.pt",
+    "synthetic-low-fences": "dsnet_synthetic_low_fences.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
