@@ -33,10 +33,7 @@ __all__ = ["SensorState", "rough_field", "sensor_state", "sweep_realistic", "til
 
 #: Raw ids whose primitives are vehicle bodies / glass (dark paint is common).
 _VEHICLES = (CAR, MOVING_CAR, *OTHER_VEHICLES)
-#: The vehicles that are not cars (``rem_dark_other``).
-_OTHER_VEHICLES = OTHER_VEHICLES
-#: Raw ids scaled by ``rem_gain_people``, ``rem_gain_pole``, ``rem_gain_sign``.
-_PEOPLE = PEOPLE
+#: Raw ids scaled by ``rem_gain_pole`` and ``rem_gain_sign`` (people: ``raw_ids.PEOPLE``).
 _POLE, _SIGN = (POLE,), (SIGN,)
 
 
@@ -94,10 +91,10 @@ def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) 
     vehicle = np.isin(labels, _VEHICLES)
     p_dark = np.where(vehicle, profile.rem_dark_prob, profile.rem_dark_stuff)
     if profile.rem_dark_other:
-        p_dark = np.where(np.isin(labels, _OTHER_VEHICLES), profile.rem_dark_other[0], p_dark)
+        p_dark = np.where(np.isin(labels, OTHER_VEHICLES), profile.rem_dark_other[0], p_dark)
     gain = np.where(rng.random(labels.size) < p_dark, 0.1 * gain, gain)
     for ids, factor in (
-        (_PEOPLE, profile.rem_gain_people),
+        (PEOPLE, profile.rem_gain_people),
         (_POLE, profile.rem_gain_pole),
         (_SIGN, profile.rem_gain_sign),
     ):
