@@ -41,7 +41,8 @@ on the same scan and weights: raw outputs and ``Predictor.predict`` classes and 
 Usage: ``.venv/bin/python benchmarks/bench_infer.py [--quick | --paper-only] [--threads N]
 [--configs official,cpu,... --frames N]``; the official column alone:
 ``--configs official --threads 2 --frames 1``. Writes ``benchmarks/results/infer.md``; rendering
-is in ``infer_report.py``. CUDA: not measured (no GPU was available).
+is in ``infer_report.py``. ``--device cuda`` times the same calls on a GPU (each stage waits for its
+kernels); ``benchmarks/cuda_check.sh`` runs it on the device machine.
 """
 
 from __future__ import annotations
@@ -125,10 +126,19 @@ def _oracle(net, sample, class_map):
         def forward(self, batch):
             t0 = time.perf_counter()
             self.last = self.net(batch)
+            _sync()
             self.times.append((time.perf_counter() - t0) * 1e3)
             return dataclasses.replace(self.last, sem_logits=logits, offsets=offsets)
 
     return Oracle(), sem, off.astype(np.float64)
+
+
+def _sync() -> None:
+    """Wait for queued CUDA work (a stage's wall time on a GPU includes its kernels)."""
+    import torch
+
+    if os.environ.get("PB_BENCH_DEVICE", "cpu").startswith("cuda"):
+        torch.cuda.synchronize()
 
 
 def _best(fn, repeats: int) -> tuple[float, object]:
@@ -136,6 +146,7 @@ def _best(fn, repeats: int) -> tuple[float, object]:
     for _ in range(repeats):
         t0 = time.perf_counter()
         result = fn()
+        _sync()
         best = min(best, (time.perf_counter() - t0) * 1e3)
     return best, result
 
