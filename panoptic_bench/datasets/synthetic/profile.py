@@ -66,7 +66,11 @@ class WorldProfile:
       primitives of the vehicles that are not cars (truck, bus, other-vehicle, motorcycle; real
       scans: 9-24 % zero returns on them against 56 % on cars); ``rem_gain_people`` (persons,
       cyclists, bicycles), ``rem_gain_pole``, ``rem_gain_sign``: reflectivity factors of those
-      classes (real medians at 3-20 m: person 0.43, pole 0.23, traffic sign 0.39).
+      classes (real medians at 3-20 m: person 0.43, pole 0.23, traffic sign 0.39);
+      ``rem_stuff_spread`` (one number, empty = ``rem_material_spread``): the material spread of
+      the primitives that are neither vehicles nor people (real scans: the scan-to-scan spread of
+      the sidewalk, terrain and vegetation medians is 3-7 %); ``rem_gain_vegetation``: factor of
+      vegetation; ``terrain_reflect``: the range a terrain patch's reflectivity is drawn from.
 
     Ground and world:
 
@@ -140,6 +144,9 @@ class WorldProfile:
     rem_gain_people: float = 1.0
     rem_gain_pole: float = 1.0
     rem_gain_sign: float = 1.0
+    rem_stuff_spread: tuple[float, ...] = ()
+    rem_gain_vegetation: float = 1.0
+    terrain_reflect: tuple[float, float] = (0.3, 0.5)
     ground_rough: float = 0.0
     ground_rough_corr: float = 0.0
     ground_wave: float = 0.0
@@ -221,6 +228,10 @@ class WorldProfile:
             "rem_gain_people": 0.0 < self.rem_gain_people <= 10.0,
             "rem_gain_pole": 0.0 < self.rem_gain_pole <= 10.0,
             "rem_gain_sign": 0.0 < self.rem_gain_sign <= 10.0,
+            "rem_stuff_spread": len(self.rem_stuff_spread) in (0, 1)
+            and all(0.0 <= v <= 2.0 for v in self.rem_stuff_spread),
+            "rem_gain_vegetation": 0.0 < self.rem_gain_vegetation <= 10.0,
+            "terrain_reflect": 0.0 <= self.terrain_reflect[0] and self.terrain_reflect[1] <= 1.0,
             "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
             "range_noise": 0.0 <= self.range_noise <= 0.5,
@@ -315,7 +326,8 @@ _SENSOR_KEYS = (
     "height_shift", "pitch_deg", "roll_deg", "real_elevations", "low_ring_keep", "ego_box",
     "max_range", "range_noise", "physical_remission", "rem_incidence_exp", "rem_range_m",
     "rem_spread", "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below",
-    "rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign",
+    "rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign", "rem_stuff_spread",
+    "rem_gain_vegetation",
     "ground_rough", "ground_rough_corr", "ground_wave", "camber",
 )  # fmt: skip
 

@@ -59,6 +59,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     SIGN,
     TERRAIN,
 )
+from panoptic_bench.datasets.synthetic.realism_materials import MATERIAL_MEASURES, material_measures
 
 __all__ = ["HISTOGRAMS", "MEASURES", "aggregate", "recover_rings", "scan_measures"]
 
@@ -116,6 +117,7 @@ MEASURES: dict[str, tuple[str, str]] = {
     "n_rings": ("rings: rings recovered", "median"),
     "clutter_pct": ("content: % unlabelled clutter (other-structure, other-object)", "mean"),
     "unlabeled_pct": ("content: % of points ignored (unlabeled, outlier, clutter)", "mean"),
+    **MATERIAL_MEASURES,
 }
 
 #: Histograms summed over scans: key -> bin edges (``ring_points`` and ``hole`` have fixed length).
@@ -339,6 +341,7 @@ def scan_measures(
         m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
         m["fence_h"] = _median(resid[near & (raw == FENCE)])
     m["fence_through_pct"] = _see_through(r, raw == FENCE)
+    m.update(material_measures(rem, raw, r))
     m["verge_terrain_pct"] = _beside_road_terrain(x, y, r, raw)
     m["road_right"], m["road_left"] = _road_edges(x, y, raw)
     m["road_far_right_pct"], m["road_far_left_pct"] = _road_far(x, y, raw)
@@ -380,7 +383,8 @@ def scan_measures(
 def aggregate(
     scans: list[tuple[dict[str, float], dict[str, np.ndarray]]],
 ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-    """Combine per-scan measures: mean or median over scans (``nan`` ignored); histograms summed.
+    """Combine per-scan measures: mean, median or std / mean ("cv") over scans (``nan`` ignored);
+    histograms summed.
 
     ``ring_points`` becomes the mean per scan; ``hole`` and ``ring_elev`` the median per entry.
     """
@@ -388,9 +392,15 @@ def aggregate(
     for key, (_, how) in MEASURES.items():
         v = np.array([s[0][key] for s in scans], float)
         v = v[np.isfinite(v)]
-        out[key] = (
-            float("nan") if v.size == 0 else float(np.mean(v) if how == "mean" else np.median(v))
-        )
+        if how == "cv":
+            ok = v.size >= 2 and np.mean(v) > 0
+            out[key] = float(np.std(v) / np.mean(v)) if ok else float("nan")
+        else:
+            out[key] = (
+                float("nan")
+                if v.size == 0
+                else float(np.mean(v) if how == "mean" else np.median(v))
+            )
     medians = ("hole", "ring_elev")
     hists = {k: np.sum([s[1][k] for s in scans], axis=0) for k in scans[0][1] if k not in medians}
     hists["ring_points"] = hists["ring_points"] / len(scans)

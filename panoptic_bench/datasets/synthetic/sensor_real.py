@@ -24,6 +24,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     PEOPLE,
     POLE,
     SIGN,
+    VEGETATION,
 )
 from panoptic_bench.datasets.synthetic.raycast import GROUND, cast, ray_directions
 from panoptic_bench.datasets.synthetic.scene import Scene
@@ -87,8 +88,13 @@ def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) 
         ]
     )
     labels = np.concatenate([scene.static.label, scene._local.label])
-    gain = rng.lognormal(0.0, profile.rem_material_spread, labels.size)
     vehicle = np.isin(labels, _VEHICLES)
+    if profile.rem_stuff_spread:  # same draws, another spread for the stuff primitives
+        stuff = ~vehicle & ~np.isin(labels, PEOPLE)
+        sigma = np.where(stuff, profile.rem_stuff_spread[0], profile.rem_material_spread)
+        gain = np.exp(sigma * rng.standard_normal(labels.size))
+    else:
+        gain = rng.lognormal(0.0, profile.rem_material_spread, labels.size)
     p_dark = np.where(vehicle, profile.rem_dark_prob, profile.rem_dark_stuff)
     if profile.rem_dark_other:
         p_dark = np.where(np.isin(labels, OTHER_VEHICLES), profile.rem_dark_other[0], p_dark)
@@ -97,6 +103,7 @@ def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) 
         (PEOPLE, profile.rem_gain_people),
         (_POLE, profile.rem_gain_pole),
         (_SIGN, profile.rem_gain_sign),
+        ((VEGETATION,), profile.rem_gain_vegetation),
     ):
         if factor != 1.0:
             gain = np.where(np.isin(labels, ids), factor * gain, gain)

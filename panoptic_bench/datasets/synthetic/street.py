@@ -184,7 +184,7 @@ def _segment(
     kerb = KERB if prof.kerb[0] == prof.kerb[1] == KERB else float(rng.uniform(*prof.kerb))
     if prof.verge_prob and verge_rng.random() < prof.verge_prob:
         # a grass verge instead of the paved sidewalk: real roads are often bordered by terrain
-        y0, y1, refl = side * y_curb, side * y_front, verge_rng.uniform(0.3, 0.5)
+        y0, y1, refl = side * y_curb, side * y_front, verge_rng.uniform(*prof.terrain_reflect)
         if prof.verge_raise:  # a raised bank (real terrain sits higher than sidewalks)
             kerb = float(verge_rng.uniform(*prof.verge_raise))
         plan.kerb.append((side, x0, x1, kerb))  # what stands on the verge stands on its top
@@ -217,7 +217,7 @@ def _segment(
                 0.0,
                 z,
                 TERRAIN,
-                rng.uniform(0.3, 0.5),
+                rng.uniform(*prof.terrain_reflect),
                 rough=prof.terrain_rough,
             )
         if kind == "fence":
