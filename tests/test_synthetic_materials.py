@@ -1,0 +1,118 @@
+"""Stuff materials as tight as the real scans' and their realism rows (issue 13, session 24)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from panoptic_bench.datasets.synthetic import Sequence
+from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile, load_profile
+from panoptic_bench.datasets.synthetic.realism import MEASURES, aggregate, scan_measures
+from panoptic_bench.datasets.synthetic.realism_materials import material_measures
+from panoptic_bench.errors import InputError
+
+REPO = Path(__file__).resolve().parents[1]
+
+VEHICLES_PEOPLE = (10, 252, 13, 15, 18, 20, 257, 258, 259, 11, 30, 31, 32, 253, 254, 255)
+TERRAIN, VEGETATION, SIDEWALK = 72, 70, 48
+
+
+def _labels(seq: Sequence) -> np.ndarray:
+    return np.concatenate([seq.scene.static.label, seq.scene._local.label])
+
+
+def test_stuff_spread_and_vegetation_gain_move_only_the_stuff_gains():
+    new_prof = dataclasses.replace(REALISTIC, rem_stuff_spread=(0.05,), rem_gain_vegetation=0.5)
+    base, new = Sequence(1, 6, 1, profile=REALISTIC), Sequence(1, 6, 1, profile=new_prof)
+    a, b = base.frame(0).sweep, new.frame(0).sweep
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    np.testing.assert_array_equal(a.label, b.label)
+    labels = _labels(base)
+    ga, gb = base.state.gain.astype(np.float64), new.state.gain.astype(np.float64)
+    things = np.isin(labels, VEHICLES_PEOPLE)
+    assert things.any() and np.allclose(ga[things], gb[things], rtol=1e-6)
+
+    # the same normal draws z: gain = d * exp(sigma * z) * factor, d = 0.1 for a dark primitive
+    # and 1 otherwise (same flags on both sides), so log(gb / (d f)) = 0.05 / 0.25 * log(ga / d)
+    def off(mask, factor):
+        err = [
+            np.abs(np.log(gb[mask] / (d * factor)) - 0.2 * np.log(ga[mask] / d)) for d in (1, 0.1)
+        ]
+        return np.minimum(*err)
+
+    stuff = ~things & (labels != VEGETATION)
+    veg = labels == VEGETATION
+    assert stuff.sum() > 20 and veg.sum() > 5
+    assert off(stuff, 1.0).max() < 1e-5
+    assert off(veg, 0.5).max() < 1e-5
+    # a tight spread: the stuff gains that are not dark lie within exp(+-5 x 0.05)
+    lit = np.abs(np.log(gb[stuff]) - 0.2 * np.log(ga[stuff])) < 1e-5
+    assert lit.mean() > 0.8 and np.all(np.abs(np.log(gb[stuff][lit])) <= 0.25)
+
+
+def test_terrain_reflect_moves_only_terrain_and_the_default_is_the_old_draw():
+    from panoptic_bench.datasets.synthetic.street import build_street
+
+    green = dataclasses.replace(REALISTIC, frontage_p=(0.0, 1.0, 0.0, 0.0), verge_prob=0.5)
+    same = dataclasses.replace(green, terrain_reflect=(0.3, 0.5))
+    tight = dataclasses.replace(green, terrain_reflect=(0.40, 0.44))
+    out = {k: build_street(np.random.default_rng(3), (-60.0, 60.0), p)[0]
+           for k, p in (("green", green), ("same", same), ("tight", tight))}  # fmt: skip
+    np.testing.assert_array_equal(out["same"].reflect, out["green"].reflect)
+    for s in out.values():
+        np.testing.assert_array_equal(s.center, out["green"].center)
+        np.testing.assert_array_equal(s.label, out["green"].label)
+    terrain = out["green"].label == TERRAIN
+    assert terrain.sum() >= 2
+    np.testing.assert_array_equal(out["tight"].reflect[~terrain], out["green"].reflect[~terrain])
+    t_old, t_new = out["green"].reflect[terrain], out["tight"].reflect[terrain]
+    assert np.all((t_new >= 0.40) & (t_new <= 0.44)) and np.ptp(t_old) > 0.04
+
+
+def test_material_measures_on_a_hand_made_scan():
+    # 300 sidewalk points at 5 m with remission 0.30, 300 terrain at 8 m with 0.40, 100 at 20 m
+    r = np.r_[np.full(300, 5.0), np.full(300, 8.0), np.full(100, 20.0)]
+    raw = np.r_[np.full(300, SIDEWALK), np.full(300, TERRAIN), np.full(100, TERRAIN)]
+    rem = np.r_[np.full(300, 0.30), np.r_[np.full(270, 0.40), np.zeros(30)], np.full(100, 0.9)]
+    m = material_measures(rem, raw, r)
+    assert m["rem_sidewalk_median"] == m["rem_sidewalk_cv"] == pytest.approx(0.30)
+    assert m["rem_terrain_median"] == pytest.approx(0.40)  # the far points do not count
+    assert np.isnan(m["rem_vegetation_median"])  # no vegetation: no value, not 0
+    assert m["rem_stuff_zero_pct"] == pytest.approx(100 * 30 / 600)
+    # the spread over scans: medians 0.3 and 0.5 -> std / mean = 0.1 / 0.4
+    scans = []
+    for v in (0.3, 0.5):
+        pts = np.column_stack([r[:300], np.zeros(300), np.full(300, -1.7), np.full(300, v)])
+        scans.append(scan_measures(pts.astype(np.float32), raw[:300].astype(np.uint32)))
+    agg, _ = aggregate(scans)
+    assert agg["rem_sidewalk_cv"] == pytest.approx(0.25, rel=1e-5)
+    assert agg["rem_sidewalk_median"] == pytest.approx(0.4, rel=1e-5)
+    assert MEASURES["rem_sidewalk_cv"][1] == "cv"
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"rem_stuff_spread": [0.1, 0.2]},
+        {"rem_stuff_spread": [-0.1]},
+        {"terrain_reflect": [0.5, 0.3]},
+        {"terrain_reflect": [0.2, 1.5]},
+        {"rem_gain_vegetation": 0.0},
+    ],
+)
+def test_bad_material_values(bad):
+    key = next(iter(bad))
+    with pytest.raises(InputError, match=key):
+        WorldProfile.from_dict(bad, base=REALISTIC)
+
+
+def test_row_16_is_row_15_plus_the_material_keys():
+    row15 = load_profile(str(REPO / "configs" / "synth_realistic_low_crowns_low_fences.yaml"))
+    row16 = load_profile(str(REPO / "configs" / "synth_realistic_low_fences_tight_materials.yaml"))
+    changed = {k for k, v in row16.to_dict().items() if row15.to_dict()[k] != v}
+    keys = {"rem_stuff_spread", "rem_gain_vegetation", "terrain_reflect", "rem_dark_stuff"}
+    assert changed == {"name"} | keys
+    assert row16.rem_stuff_spread[0] < row15.rem_material_spread
