@@ -116,3 +116,30 @@ def test_row_16_is_row_15_plus_the_material_keys():
     keys = {"rem_stuff_spread", "rem_gain_vegetation", "terrain_reflect", "rem_dark_stuff"}
     assert changed == {"name"} | keys
     assert row16.rem_stuff_spread[0] < row15.rem_material_spread
+
+
+def test_lot_raise_builds_raised_lots_and_leaves_the_rest():
+    """lot_raise: forecourts and plazas become boxes within the height range; nothing else moves."""
+    from panoptic_bench.datasets.synthetic.street import build_street
+
+    lots = dataclasses.replace(REALISTIC, frontage_p=(0.5, 0.0, 0.0, 0.5))  # buildings, plazas
+    raised = dataclasses.replace(lots, lot_raise=(0.05, 0.12))
+    (a, ga, _), (b, gb, _) = (
+        build_street(np.random.default_rng(5), (-60.0, 60.0), p) for p in (lots, raised)
+    )
+    new = np.isin(b.label, (49, TERRAIN))  # the realistic world builds no other such boxes
+    old_rows = ~new
+    # every primitive of the painted world is still there, in order, unchanged
+    np.testing.assert_array_equal(b.center[old_rows], a.center)
+    np.testing.assert_array_equal(b.label[old_rows], a.label)
+    top = (b.center[:, 2] + b.half[:, 2])[new]
+    assert new.sum() >= 2 and np.all((top >= 0.05 - 1e-9) & (top <= 0.12 + 1e-9))
+    assert np.all(b.center[new, 2] - b.half[new, 2] == pytest.approx(0.0))
+    # the ground map no longer carries the lots' labels where the boxes stand
+    assert (gb.label == 49).sum() < (ga.label == 49).sum()
+    paved = b.label[new] == 49
+    assert paved.any() and np.all(
+        b.reflect[new][paved] == pytest.approx(REALISTIC.sidewalk_reflect)
+    )
+    with pytest.raises(InputError, match="lot_raise"):
+        WorldProfile.from_dict({"lot_raise": [0.1]}, base=REALISTIC)

@@ -112,6 +112,9 @@ class WorldProfile:
       ``fence_height``: (low, high) height (m) of a fence frontage's fence; ``fence_lattice``:
       probability that such a fence is a see-through lattice of thin bars instead of a solid
       panel (:mod:`~panoptic_bench.datasets.synthetic.fences`), its own stream;
+      ``lot_raise``: (low, high) height (m) of building forecourts and plazas built as raised
+      boxes (paved: the sidewalk's reflectivity; grass: ``terrain_reflect``), its own stream;
+      empty = painted on the ground at road level;
       ``parked_fill``: fraction of parking strips filled with cars;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
@@ -180,6 +183,7 @@ class WorldProfile:
     side_street_width: tuple[float, float] = (6.0, 10.0)
     fence_height: tuple[float, float] = (1.0, 2.0)
     fence_lattice: float = 0.0
+    lot_raise: tuple[float, ...] = ()
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -213,6 +217,8 @@ class WorldProfile:
             and self.side_street_width[1] <= 20.0,
             "fence_height": 0.2 <= self.fence_height[0] and self.fence_height[1] <= 4.0,
             "fence_lattice": 0.0 <= self.fence_lattice <= 1.0,
+            "lot_raise": len(self.lot_raise) in (0, 2)
+            and all(0.0 <= v <= 1.0 for v in self.lot_raise),
             "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
             "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,

@@ -97,6 +97,7 @@ MEASURES: dict[str, tuple[str, str]] = {
     "verge_terrain_pct": ("layout: % terrain among the ground points beside the road", "mean"),
     "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
     "terrain_h": ("ground: terrain height above the road (m)", "median"),
+    "other_ground_h": ("ground: other-ground height above the road (m) (session 24)", "median"),
     "building_y": ("layout: building median lateral distance (m)", "median"),
     "car_y": ("layout: car median lateral distance (m)", "median"),
     "road_right": ("layout: road edge to the right of the sensor (m)", "median"),
@@ -325,7 +326,7 @@ def scan_measures(
     resid = np.zeros(0)
     nan = float("nan")
     m.update(road_z=nan, pitch_deg=nan, roll_deg=nan, road_rough_cm=nan)
-    m.update(sidewalk_h=nan, terrain_h=nan, fence_h=nan)
+    m.update(sidewalk_h=nan, terrain_h=nan, fence_h=nan, other_ground_h=nan)
     if coef is not None:
         a, b, c = coef
         m.update(
@@ -340,6 +341,7 @@ def scan_measures(
         m["sidewalk_h"] = _median(resid[near & (raw == SIDEWALK)])
         m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
         m["fence_h"] = _median(resid[near & (raw == FENCE)])
+        m["other_ground_h"] = _median(resid[near & (raw == OTHER_GROUND)])
     m["fence_through_pct"] = _see_through(r, raw == FENCE)
     m.update(material_measures(rem, raw, r))
     m["verge_terrain_pct"] = _beside_road_terrain(x, y, r, raw)

@@ -24,12 +24,13 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
 
 __all__ = ["MATERIAL_MEASURES", "material_measures"]
 
-#: Classes with a per-scan median row and a scan-to-scan spread row.
+#: Classes with a per-scan median row and a scan-to-scan spread row: (key, name, raw id).
 MATERIAL_CLASSES = (
-    ("sidewalk", SIDEWALK),
-    ("terrain", TERRAIN),
-    ("vegetation", VEGETATION),
-    ("building", BUILDING),
+    ("sidewalk", "sidewalk", SIDEWALK),
+    ("terrain", "terrain", TERRAIN),
+    ("vegetation", "vegetation", VEGETATION),
+    ("building", "building", BUILDING),
+    ("other_ground", "other-ground", OTHER_GROUND),
 )
 #: Stuff surfaces whose exact-zero share is measured.
 STUFF = (SIDEWALK, OTHER_GROUND, BUILDING, FENCE, VEGETATION, TRUNK, TERRAIN)
@@ -39,15 +40,15 @@ MIN_POINTS = 200
 #: Scalar measures (``realism.MEASURES`` format); "cv" = std / mean over scans of the per-scan value.
 MATERIAL_MEASURES: dict[str, tuple[str, str]] = {
     **{
-        f"rem_{name}_median": (f"remission: {name} median (3-15 m)", "median")
-        for name, _ in MATERIAL_CLASSES
+        f"rem_{key}_median": (f"remission: {name} median (3-15 m)", "median")
+        for key, name, _ in MATERIAL_CLASSES
     },
     **{
-        f"rem_{name}_cv": (
+        f"rem_{key}_cv": (
             f"remission: scan-to-scan spread of the {name} median (std / mean)",
             "cv",
         )
-        for name, _ in MATERIAL_CLASSES
+        for key, name, _ in MATERIAL_CLASSES
     },
     "rem_stuff_zero_pct": (
         "remission: % of stuff points exactly 0 (3-15 m: sidewalk, other-ground, building, fence, "
@@ -78,10 +79,10 @@ def material_measures(rem: np.ndarray, raw: np.ndarray, r: np.ndarray) -> dict[s
     """
     near = (r >= 3) & (r < 15)
     m: dict[str, float] = {}
-    for name, raw_id in MATERIAL_CLASSES:
+    for key, _, raw_id in MATERIAL_CLASSES:
         sel = near & (raw == raw_id)
         v = float(np.median(rem[sel])) if sel.sum() >= MIN_POINTS else float("nan")
-        m[f"rem_{name}_median"] = m[f"rem_{name}_cv"] = v
+        m[f"rem_{key}_median"] = m[f"rem_{key}_cv"] = v
     stuff = near & np.isin(raw, STUFF)
     m["rem_stuff_zero_pct"] = (
         100.0 * float(np.mean(rem[stuff] == 0)) if stuff.sum() >= MIN_POINTS else float("nan")

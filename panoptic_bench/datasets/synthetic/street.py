@@ -166,6 +166,7 @@ def _segment(
     verge_rng: np.random.Generator | None = None,
     strip_rng: np.random.Generator | None = None,
     fence_rng: np.random.Generator | None = None,
+    lot_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -198,12 +199,19 @@ def _segment(
         setback = rng.uniform(0.0, 3.0)
         if setback > 0.5:
             ys = sorted((side * y_front, side * (y_front + setback)))
-            gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND if rng.random() < 0.6 else TERRAIN, 0.3)
+            label = OTHER_GROUND if rng.random() < 0.6 else TERRAIN
+            if lot_rng is None:
+                gm.paint(x0, x1, ys[0], ys[1], label, 0.3)
+            else:
+                _raised_lot(b, lot_rng, prof, x0, x1, ys, label)
         _buildings(b, rng, x0, x1, side, y_front + setback)
         return
     if kind == "plaza":
         ys = sorted((side * y_front, side * back))
-        gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND, 0.28)
+        if lot_rng is None:
+            gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND, 0.28)
+        else:
+            _raised_lot(b, lot_rng, prof, x0, x1, ys, OTHER_GROUND)
     else:
         z = 0.0
         if prof.terrain_raise:
@@ -251,6 +259,17 @@ def _segment(
             _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
     if prof.back_row_prob >= 1.0 or rng.random() < prof.back_row_prob:
         _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
+
+
+def _raised_lot(b: _Builder, rng, prof: WorldProfile, x0, x1, ys, label: int) -> None:
+    """A building's forecourt or a plaza raised above the road (``lot_raise``): paved lots take the
+    sidewalk's reflectivity, grass lots a terrain patch's."""
+    z = float(rng.uniform(*prof.lot_raise))
+    if label == TERRAIN:
+        refl, rough = float(rng.uniform(*prof.terrain_reflect)), prof.terrain_rough
+    else:
+        refl, rough = prof.sidewalk_reflect, 0.0
+    b.box(x0, x1, ys[0], ys[1], 0.0, z, label, refl, rough=rough)
 
 
 def curb_at(plan: StreetPlan, side: int, x: float) -> float:
@@ -369,7 +388,8 @@ def build_street(
     # so do the road-labelled parking strips (spawned after the verges: their stream is unchanged)
     strip_rng = rng.spawn(1)[0] if profile.parking_road else None
     side_rng = rng.spawn(1)[0] if profile.side_street_prob else None  # spawned after: same as above
-    fence_rng = rng.spawn(1)[0] if profile.fence_lattice else None  # spawned last: same as above
+    fence_rng = rng.spawn(1)[0] if profile.fence_lattice else None  # spawned after: same as above
+    lot_rng = rng.spawn(1)[0] if profile.lot_raise else None  # spawned last: same as above
     for side in (-1, 1):
         x = x0
         while x < x1:
@@ -377,7 +397,8 @@ def build_street(
             if x1 - (x + length) < 10.0:
                 length = x1 - x
             start = len(b.rows)
-            _segment(b, gm, rng, plan, side, x, x + length, verge_rng, strip_rng, fence_rng)
+            streams = (verge_rng, strip_rng, fence_rng, lot_rng)
+            _segment(b, gm, rng, plan, side, x, x + length, *streams)
             if side_rng is not None:
                 open_side_street(b, start, gm, plan, side_rng, side, x, x + length)
             x += length
