@@ -97,7 +97,7 @@ MEASURES: dict[str, tuple[str, str]] = {
     "verge_terrain_pct": ("layout: % terrain among the ground points beside the road", "mean"),
     "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
     "terrain_h": ("ground: terrain height above the road (m)", "median"),
-    "other_ground_h": ("ground: other-ground height above the road (m) (session 24)", "median"),
+    "other_ground_h": ("ground: other-ground height above the road (m)", "median"),
     "building_y": ("layout: building median lateral distance (m)", "median"),
     "car_y": ("layout: car median lateral distance (m)", "median"),
     "road_right": ("layout: road edge to the right of the sensor (m)", "median"),
