@@ -24,21 +24,10 @@ from panoptic_bench.errors import InputError
 __all__ = [
     "CLASSIC",
     "PROFILES",
-    "REAL_HDL64E_ELEVATIONS",
     "REALISTIC",
     "WorldProfile",
     "load_profile",
 ]
-
-#: Median elevation (degrees) of each ring of the 55 real HDL-64E scans, lowest first.
-REAL_HDL64E_ELEVATIONS = (
-    -23.673, -23.157, -22.677, -22.047, -21.619, -21.192, -20.721, -20.093, -19.602, -19.041,
-    -18.606, -18.189, -17.689, -17.232, -16.67, -16.145, -15.512, -15.146, -14.65, -14.215,
-    -13.64, -13.12, -12.596, -12.171, -11.72, -11.291, -10.799, -10.198, -9.738, -9.354, -8.898,
-    -8.382, -7.771, -7.396, -7.173, -6.834, -6.467, -6.202, -5.897, -5.589, -5.255, -4.939,
-    -4.626, -4.305, -4.008, -3.634, -3.352, -2.962, -2.647, -2.312, -1.993, -1.656, -1.289,
-    -0.96, -0.662, -0.265, 0.087, 0.453, 0.725, 1.129, 1.415, 1.874, 2.131, 2.495,
-)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -50,7 +39,8 @@ class WorldProfile:
     - ``height_shift``, ``pitch_deg``, ``roll_deg``: (mean, std) per sequence of the sensor
       height change (m) and tilt (degrees; positive pitch looks down, positive roll lowers the
       left side);
-    - ``real_elevations``: HDL-64E beams at :data:`REAL_HDL64E_ELEVATIONS`;
+    - ``real_elevations``: HDL-64E beams at the real rings' elevations
+      (:data:`~panoptic_bench.datasets.synthetic.sensor_real.REAL_HDL64E_ELEVATIONS`);
     - ``low_ring_keep``: keep probability of the lowest rings (ring 0 first);
     - ``ego_box``: ego-vehicle body that hides rays, ``(x_back, x_front, y_right, y_left,
       z_top)`` in the sensor frame (metres; empty = none);
@@ -67,10 +57,9 @@ class WorldProfile:
       scans: 9-24 % zero returns on them against 56 % on cars); ``rem_gain_people`` (persons,
       cyclists, bicycles), ``rem_gain_pole``, ``rem_gain_sign``: reflectivity factors of those
       classes (real medians at 3-20 m: person 0.43, pole 0.23, traffic sign 0.39);
-      ``rem_stuff_spread`` (one number, empty = ``rem_material_spread``): the material spread of
-      the primitives that are neither vehicles nor people (real scans: the scan-to-scan spread of
-      the sidewalk, terrain and vegetation medians is 3-7 %); ``rem_gain_vegetation``: factor of
-      vegetation; ``terrain_reflect``: the range a terrain patch's reflectivity is drawn from.
+      ``rem_stuff_spread`` (one number, empty = ``rem_material_spread``): material spread of the
+      primitives that are neither vehicles nor people; ``rem_gain_vegetation``: factor of
+      vegetation; ``terrain_reflect``: range of a terrain patch's reflectivity.
 
     Ground and world:
 

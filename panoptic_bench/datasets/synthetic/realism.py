@@ -51,13 +51,20 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     OTHER_OBJECT,
     OTHER_STRUCTURE,
     OTHER_VEHICLES,
-    PARKING,
     PEOPLE,
     POLE,
     ROAD,
     SIDEWALK,
     SIGN,
     TERRAIN,
+)
+from panoptic_bench.datasets.synthetic.realism_layout import (
+    GROUND,
+    beside_road_terrain,
+    median,
+    pct,
+    road_edges,
+    road_far,
 )
 from panoptic_bench.datasets.synthetic.realism_materials import MATERIAL_MEASURES, material_measures
 
@@ -131,7 +138,6 @@ RANGE_BINS = np.arange(0.0, 85.0, 5.0)
 N_RINGS = 64
 N_SECTORS = 8
 CLUTTER = (OTHER_STRUCTURE, OTHER_OBJECT)
-GROUND = (ROAD, PARKING, SIDEWALK, OTHER_GROUND, TERRAIN)
 
 
 def recover_rings(xyz: np.ndarray) -> np.ndarray:
@@ -183,55 +189,6 @@ def _plane(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray | None:
     return coef
 
 
-def _beside_road_terrain(x, y, r, raw: np.ndarray, cell: float = 0.5) -> float:
-    """% terrain among the non-road ground points 3-20 m away next to a road cell."""
-    road = raw == ROAD
-    ground = np.isin(raw, (PARKING, SIDEWALK, OTHER_GROUND, TERRAIN)) & (r >= 3) & (r <= 20)
-    if not road.any() or not ground.any():
-        return float("nan")
-    n = int(np.ceil(2 * 80.0 / cell)) + 3
-    i = np.clip(np.floor((x + 80.0) / cell).astype(np.int64) + 1, 1, n - 2)
-    j = np.clip(np.floor((y + 80.0) / cell).astype(np.int64) + 1, 1, n - 2)
-    occ = np.zeros((n, n), bool)
-    occ[i[road], j[road]] = True
-    near = np.zeros_like(occ)
-    for di in (-1, 0, 1):
-        for dj in (-1, 0, 1):
-            near |= np.roll(np.roll(occ, di, 0), dj, 1)
-    beside = ground & near[i, j]
-    return _pct(raw[beside] == TERRAIN) if beside.any() else float("nan")
-
-
-def _road_edges(x, y, raw: np.ndarray) -> tuple[float, float]:
-    """Median lateral distance (m) to the first non-carriageway ground point: right, left."""
-    ground = np.isin(raw, GROUND)
-    slab = np.floor(x).astype(np.int64)
-    ahead = ground & (np.abs(x) >= 4) & (np.abs(x) < 12)
-    edges = []
-    for side in (-1, 1):
-        found = []
-        for k in np.unique(slab[ahead]):
-            sel = ahead & (slab == k) & (side * y > 0)
-            if sel.sum() < 20:
-                continue
-            order = np.argsort(side * y[sel], kind="stable")
-            off = ~np.isin(raw[sel][order], (ROAD, PARKING))
-            if off.any():
-                found.append(float(side * y[sel][order][np.argmax(off)]))
-        edges.append(_median(np.array(found)))
-    return edges[0], edges[1]
-
-
-def _road_far(x, y, raw: np.ndarray) -> tuple[float, float]:
-    """% road among the ground points 6-12 m to the right / left, 5-15 m ahead and behind."""
-    ground = np.isin(raw, GROUND) & (np.abs(x) >= 5) & (np.abs(x) < 15)
-    out = []
-    for side in (-1, 1):
-        sel = ground & (side * y >= 6) & (side * y < 12)
-        out.append(_pct(raw[sel] == ROAD) if sel.any() else float("nan"))
-    return out[0], out[1]
-
-
 def _see_through(r: np.ndarray, fence: np.ndarray) -> float:
     """% of fence points' recording-order neighbours (under 30 m) that lie > 1 m farther."""
     if r.size < 2:
@@ -242,7 +199,7 @@ def _see_through(r: np.ndarray, fence: np.ndarray) -> float:
         sel = near[a]
         behind.append(r[b][sel] - r[a][sel] > 1.0)
     both = np.concatenate(behind)
-    return _pct(both) if both.size else float("nan")
+    return pct(both) if both.size else float("nan")
 
 
 def _jitter(x, y, z, r, mask: np.ndarray) -> float:
@@ -255,14 +212,6 @@ def _jitter(x, y, z, r, mask: np.ndarray) -> float:
         return float("nan")
     d = (z[1:-1] - (z[:-2] + z[2:]) / 2)[ok]
     return 1000.0 * 1.4826 * float(np.median(np.abs(d - np.median(d))))
-
-
-def _median(v: np.ndarray) -> float:
-    return float(np.median(v)) if v.size else float("nan")
-
-
-def _pct(mask: np.ndarray) -> float:
-    return 100.0 * float(mask.mean()) if mask.size else float("nan")
 
 
 def scan_measures(
@@ -295,32 +244,32 @@ def scan_measures(
     near = (r >= 3) & (r < 20)
     other_vehicle = np.isin(raw, OTHER_VEHICLES)
     m: dict[str, float] = {
-        "rem_zero_pct": _pct(rem == 0),
-        "rem_dark_pct": _pct(dark),
-        "rem_dark_road_pct": _pct(road[dark]),
-        "rem_dark_car_pct": _pct(car[dark]),
+        "rem_zero_pct": pct(rem == 0),
+        "rem_dark_pct": pct(dark),
+        "rem_dark_road_pct": pct(road[dark]),
+        "rem_dark_car_pct": pct(car[dark]),
         "rem_std": float(rem.std()) if rem.size else float("nan"),
-        "rem_car_median": _median(rem[car]),
-        "rem_car_zero_pct": _pct(rem[car] == 0),
-        "rem_other_vehicle_median": _median(rem[other_vehicle & near]),
-        "rem_other_vehicle_zero_pct": _pct(rem[other_vehicle] == 0),
-        "rem_people_median": _median(rem[np.isin(raw, PEOPLE) & near]),
-        "rem_pole_median": _median(rem[(raw == POLE) & near]),
-        "rem_sign_median": _median(rem[(raw == SIGN) & near]),
-        "rem_road_lt5": _median(rem[road & (r < 5)]),
-        "rem_road_20_40": _median(rem[road & (r >= 20) & (r < 40)]),
-        "rem_road_gt40": _median(rem[road & (r >= 40)]),
-        "below_185_pct": _pct(z < -1.85),
-        "building_y": _median(np.abs(y[raw == BUILDING])),
-        "car_y": _median(np.abs(y[car])),
-        "car_range": _median(r[car]),
-        "near5_pct": _pct(r < 5),
+        "rem_car_median": median(rem[car]),
+        "rem_car_zero_pct": pct(rem[car] == 0),
+        "rem_other_vehicle_median": median(rem[other_vehicle & near]),
+        "rem_other_vehicle_zero_pct": pct(rem[other_vehicle] == 0),
+        "rem_people_median": median(rem[np.isin(raw, PEOPLE) & near]),
+        "rem_pole_median": median(rem[(raw == POLE) & near]),
+        "rem_sign_median": median(rem[(raw == SIGN) & near]),
+        "rem_road_lt5": median(rem[road & (r < 5)]),
+        "rem_road_20_40": median(rem[road & (r >= 20) & (r < 40)]),
+        "rem_road_gt40": median(rem[road & (r >= 40)]),
+        "below_185_pct": pct(z < -1.85),
+        "building_y": median(np.abs(y[raw == BUILDING])),
+        "car_y": median(np.abs(y[car])),
+        "car_range": median(r[car]),
+        "near5_pct": pct(r < 5),
         "far_max": float(r.max()) if r.size else float("nan"),
-        "clutter_pct": _pct(np.isin(raw, CLUTTER)),
+        "clutter_pct": pct(np.isin(raw, CLUTTER)),
     }
     from panoptic_bench.datasets.semantickitti import to_train
 
-    m["unlabeled_pct"] = _pct(to_train(raw.astype(np.uint16)) == 0)
+    m["unlabeled_pct"] = pct(to_train(raw.astype(np.uint16)) == 0)
     sel = road & (r >= 3) & (r <= 20)
     coef = _plane(x[sel], y[sel], z[sel])
     resid = np.zeros(0)
@@ -338,21 +287,21 @@ def scan_measures(
         fit = sel & (np.abs(resid) < 0.15)
         m["road_rough_cm"] = 100.0 * float(resid[fit].std())
         near = (r >= 3) & (r <= 20)
-        m["sidewalk_h"] = _median(resid[near & (raw == SIDEWALK)])
-        m["terrain_h"] = _median(resid[near & (raw == TERRAIN)])
-        m["fence_h"] = _median(resid[near & (raw == FENCE)])
-        m["other_ground_h"] = _median(resid[near & (raw == OTHER_GROUND)])
+        m["sidewalk_h"] = median(resid[near & (raw == SIDEWALK)])
+        m["terrain_h"] = median(resid[near & (raw == TERRAIN)])
+        m["fence_h"] = median(resid[near & (raw == FENCE)])
+        m["other_ground_h"] = median(resid[near & (raw == OTHER_GROUND)])
     m["fence_through_pct"] = _see_through(r, raw == FENCE)
     m.update(material_measures(rem, raw, r))
-    m["verge_terrain_pct"] = _beside_road_terrain(x, y, r, raw)
-    m["road_right"], m["road_left"] = _road_edges(x, y, raw)
-    m["road_far_right_pct"], m["road_far_left_pct"] = _road_far(x, y, raw)
+    m["verge_terrain_pct"] = beside_road_terrain(x, y, r, raw)
+    m["road_right"], m["road_left"] = road_edges(x, y, raw)
+    m["road_far_right_pct"], m["road_far_left_pct"] = road_far(x, y, raw)
     for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
         m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
     ring = recover_rings(points[:, :3])
     ring_points = np.bincount(ring, minlength=N_RINGS)[:N_RINGS]
     elev = np.degrees(np.arctan2(z, r))
-    ring_elev = np.array([_median(elev[ring == k]) for k in range(N_RINGS)])
+    ring_elev = np.array([median(elev[ring == k]) for k in range(N_RINGS)])
     m["n_rings"] = float(ring.max() + 1) if ring.size else 0.0
     others = ring_points[12:]
     m["low_ring_ratio"] = (

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from panoptic_bench.datasets.synthetic.profile import REAL_HDL64E_ELEVATIONS, WorldProfile
+from panoptic_bench.datasets.synthetic.profile import WorldProfile
 from panoptic_bench.datasets.synthetic.raw_ids import (
     CAR,
     MOVING_CAR,
@@ -30,8 +30,24 @@ from panoptic_bench.datasets.synthetic.raycast import GROUND, cast, ray_directio
 from panoptic_bench.datasets.synthetic.scene import Scene
 from panoptic_bench.datasets.synthetic.shapes import normals
 
-__all__ = ["SensorState", "rough_field", "sensor_state", "sweep_realistic", "tilt_matrix"]
+__all__ = [
+    "REAL_HDL64E_ELEVATIONS",
+    "SensorState",
+    "rough_field",
+    "sensor_state",
+    "sweep_realistic",
+    "tilt_matrix",
+]
 
+#: Median elevation (degrees) of each ring of the 55 real HDL-64E scans, lowest first.
+REAL_HDL64E_ELEVATIONS = (
+    -23.673, -23.157, -22.677, -22.047, -21.619, -21.192, -20.721, -20.093, -19.602, -19.041,
+    -18.606, -18.189, -17.689, -17.232, -16.67, -16.145, -15.512, -15.146, -14.65, -14.215,
+    -13.64, -13.12, -12.596, -12.171, -11.72, -11.291, -10.799, -10.198, -9.738, -9.354, -8.898,
+    -8.382, -7.771, -7.396, -7.173, -6.834, -6.467, -6.202, -5.897, -5.589, -5.255, -4.939,
+    -4.626, -4.305, -4.008, -3.634, -3.352, -2.962, -2.647, -2.312, -1.993, -1.656, -1.289,
+    -0.96, -0.662, -0.265, 0.087, 0.453, 0.725, 1.129, 1.415, 1.874, 2.131, 2.495,
+)  # fmt: skip
 #: Raw ids whose primitives are vehicle bodies / glass (dark paint is common).
 _VEHICLES = (CAR, MOVING_CAR, *OTHER_VEHICLES)
 #: Raw ids scaled by ``rem_gain_pole`` and ``rem_gain_sign`` (people: ``raw_ids.PEOPLE``).

@@ -17,6 +17,7 @@ import numpy as np
 
 from panoptic_bench.datasets.synthetic.fences import build_fence
 from panoptic_bench.datasets.synthetic.ground import GroundMap
+from panoptic_bench.datasets.synthetic.lots import raised_lot
 from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
 from panoptic_bench.datasets.synthetic.raw_ids import (
@@ -203,7 +204,7 @@ def _segment(
             if lot_rng is None:
                 gm.paint(x0, x1, ys[0], ys[1], label, 0.3)
             else:
-                _raised_lot(b, lot_rng, prof, x0, x1, ys, label)
+                raised_lot(b, lot_rng, prof, x0, x1, ys, label)
         _buildings(b, rng, x0, x1, side, y_front + setback)
         return
     if kind == "plaza":
@@ -211,7 +212,7 @@ def _segment(
         if lot_rng is None:
             gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND, 0.28)
         else:
-            _raised_lot(b, lot_rng, prof, x0, x1, ys, OTHER_GROUND)
+            raised_lot(b, lot_rng, prof, x0, x1, ys, OTHER_GROUND)
     else:
         z = 0.0
         if prof.terrain_raise:
@@ -259,17 +260,6 @@ def _segment(
             _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
     if prof.back_row_prob >= 1.0 or rng.random() < prof.back_row_prob:
         _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
-
-
-def _raised_lot(b: _Builder, rng, prof: WorldProfile, x0, x1, ys, label: int) -> None:
-    """A building's forecourt or a plaza raised above the road (``lot_raise``): paved lots take the
-    sidewalk's reflectivity, grass lots a terrain patch's."""
-    z = float(rng.uniform(*prof.lot_raise))
-    if label == TERRAIN:
-        refl, rough = float(rng.uniform(*prof.terrain_reflect)), prof.terrain_rough
-    else:
-        refl, rough = prof.sidewalk_reflect, 0.0
-    b.box(x0, x1, ys[0], ys[1], 0.0, z, label, refl, rough=rough)
 
 
 def curb_at(plan: StreetPlan, side: int, x: float) -> float:
