@@ -143,3 +143,10 @@ def test_lot_raise_builds_raised_lots_and_leaves_the_rest():
     )
     with pytest.raises(InputError, match="lot_raise"):
         WorldProfile.from_dict({"lot_raise": [0.1]}, base=REALISTIC)
+
+
+def test_row_17_is_row_15_plus_raised_lots():
+    row15 = load_profile(str(REPO / "configs" / "synth_realistic_low_crowns_low_fences.yaml"))
+    row17 = load_profile(str(REPO / "configs" / "synth_realistic_low_fences_raised_lots.yaml"))
+    changed = {k for k, v in row17.to_dict().items() if row15.to_dict()[k] != v}
+    assert changed == {"name", "lot_raise"}
