@@ -48,6 +48,7 @@ REAL_HDL64E_ELEVATIONS = (
     -4.626, -4.305, -4.008, -3.634, -3.352, -2.962, -2.647, -2.312, -1.993, -1.656, -1.289,
     -0.96, -0.662, -0.265, 0.087, 0.453, 0.725, 1.129, 1.415, 1.874, 2.131, 2.495,
 )  # fmt: skip
+
 #: Raw ids whose primitives are vehicle bodies / glass (dark paint is common).
 _VEHICLES = (CAR, MOVING_CAR, *OTHER_VEHICLES)
 #: Raw ids scaled by ``rem_gain_pole`` and ``rem_gain_sign`` (people: ``raw_ids.PEOPLE``).
