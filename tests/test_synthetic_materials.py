@@ -150,3 +150,15 @@ def test_row_17_is_row_15_plus_raised_lots():
     row17 = load_profile(str(REPO / "configs" / "synth_realistic_low_fences_raised_lots.yaml"))
     changed = {k for k, v in row17.to_dict().items() if row15.to_dict()[k] != v}
     assert changed == {"name", "lot_raise"}
+
+
+def test_row_18b_is_row_16_and_row_17_together():
+    load = lambda name: load_profile(str(REPO / "configs" / f"{name}.yaml")).to_dict()  # noqa: E731
+    row15 = load("synth_realistic_low_crowns_low_fences")
+    row16 = load("synth_realistic_low_fences_tight_materials")
+    row17 = load("synth_realistic_low_fences_raised_lots")
+    row18 = load("synth_realistic_low_fences_tight_materials_raised_lots")
+    moved = lambda row: {k for k, v in row.items() if row15[k] != v} - {"name"}  # noqa: E731
+    assert moved(row18) == moved(row16) | moved(row17) and moved(row16).isdisjoint(moved(row17))
+    assert all(row18[k] == row16[k] for k in moved(row16))
+    assert all(row18[k] == row17[k] for k in moved(row17))
