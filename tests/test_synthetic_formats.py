@@ -137,3 +137,38 @@ def test_nuscenes_loads_and_devkit_panoptic_agrees(tmp_path: Path):
             assert ((ours == 0) & (pid > 0)).sum() == 0
             assert ((cls >= 24) == (ours == 0)).mean() > 0.99
             tok, fi = sample["next"], fi + 1
+
+
+def test_mixed_worlds_take_each_sequence_from_its_profile(tmp_path: Path, capsys):
+    """``--profile a,b``: the k-th listed sequence is exactly what profile k mod 2 writes alone."""
+    mixed, real_only, classic_only = tmp_path / "mixed", tmp_path / "r", tmp_path / "c"
+    seqs = "03:1,01:1,02:1"  # order of the list, not of the ids, assigns the worlds
+    assert main(["synth", "semantickitti", "--out", str(mixed), "--sequences", seqs,
+                 "--profile", "realistic,classic"]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "world realistic (realistic): sequences 03, 02" in out
+    assert "world classic (classic): sequences 01" in out
+    generate_semantickitti(real_only, {"03": 1, "02": 1}, profile="realistic", progress=False)
+    generate_semantickitti(classic_only, {"01": 1}, profile="classic", progress=False)
+    for seq, alone in (("03", real_only), ("02", real_only), ("01", classic_only)):
+        for name in ("velodyne/000000.bin", "labels/000000.label", "poses.txt"):
+            got = (mixed / "sequences" / seq / name).read_bytes()
+            assert got == (alone / "sequences" / seq / name).read_bytes()
+    # the two worlds differ, so the test would see a swapped assignment
+    other = generate_semantickitti(tmp_path / "c3", {"03": 1}, progress=False)
+    a = (other / "sequences/03/velodyne/000000.bin").read_bytes()
+    assert a != (mixed / "sequences/03/velodyne/000000.bin").read_bytes()
+
+
+def test_mixed_worlds_bad_profile_is_one_error(tmp_path: Path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("lot_raise: [0.1]\n")
+    out = tmp_path / "never"
+    code = main(["synth", "semantickitti", "--out", str(out), "--sequences", "00:1,01:1",
+                 "--profile", f"realistic,{bad}"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "bad.yaml" in err and "lot_raise" in err and "Traceback" not in err
+    assert not out.exists()
+    assert main(["synth", "semantickitti", "--out", str(out), "--sequences", "00:1",
+                 "--profile", "realistic,"]) == 2  # fmt: skip
+    assert "unknown profile ''" in capsys.readouterr().err and not out.exists()

@@ -34,7 +34,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--profile",
         default="classic",
         help="world/sensor profile: classic (default, the original world), realistic, or a "
-        "YAML file of overrides (e.g. configs/synth_realistic.yaml)",
+        "YAML file of overrides (e.g. configs/synth_realistic.yaml); a comma-separated list "
+        "mixes worlds: the k-th sequence of --sequences uses the (k mod n)-th profile",
     )
     kitti.set_defaults(func=semantickitti)
 
@@ -113,10 +114,15 @@ def semantickitti(args: argparse.Namespace) -> int:
     from panoptic_bench.io import output_tree
 
     seqs = parse_sequences(args.sequences)
-    profile = load_profile(args.profile)
+    names = [n.strip() for n in args.profile.split(",")]
+    profiles = [load_profile(n) for n in names]  # every file checked before anything is written
     with output_tree(args.out, overwrite=args.overwrite) as tmp:  # all or nothing (Ctrl-C, ENOSPC)
-        generate_semantickitti(tmp, seqs, seed=args.seed, overwrite=True, profile=profile)
+        generate_semantickitti(tmp, seqs, seed=args.seed, overwrite=True, profile=profiles)
     print(f"wrote {sum(seqs.values())} scans in {len(seqs)} sequence(s) to {args.out}")
+    if len(profiles) > 1:
+        for i, (name, prof) in enumerate(zip(names, profiles)):
+            mine = [s for k, s in enumerate(seqs) if k % len(profiles) == i]
+            print(f"  world {prof.name} ({name}): sequences {', '.join(mine) or '-'}")
     return 0
 
 

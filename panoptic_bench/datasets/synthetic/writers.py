@@ -131,8 +131,10 @@ def generate_semantickitti(
         Allow writing into a non-empty ``out``.
     progress : bool
         Show a progress bar.
-    profile : WorldProfile or str, optional
-        World and sensor profile (``classic`` by default).
+    profile : WorldProfile or str, or a list of them, optional
+        World and sensor profile (``classic`` by default). A list mixes worlds: the k-th
+        sequence of ``sequences`` (in its order) is written with ``profile[k % len(profile)]``,
+        so each sequence equals the one that profile alone writes for it.
 
     Returns
     -------
@@ -141,14 +143,18 @@ def generate_semantickitti(
     """
     from panoptic_bench.datasets.synthetic.profile import load_profile
 
-    profile = load_profile(profile)
+    profiles = [
+        load_profile(p) for p in (profile if isinstance(profile, list | tuple) else [profile])
+    ]
+    if not profiles:
+        raise ValueError("profile: an empty list of world profiles")
     root = ensure_output_dir(out, overwrite=overwrite)
     total = sum(sequences.values())
     with tqdm(
         total=total, desc="synth semantickitti", unit="scan", disable=None if progress else True
     ) as bar:
-        for name, n_frames in sequences.items():
-            seq = Sequence(seed, int(name), n_frames, profile=profile)
+        for k, (name, n_frames) in enumerate(sequences.items()):
+            seq = Sequence(seed, int(name), n_frames, profile=profiles[k % len(profiles)])
             seq_dir = root / "sequences" / f"{int(name):02d}"
             poses, times = [], []
             first_inv = None
