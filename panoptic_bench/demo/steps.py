@@ -177,6 +177,10 @@ TRAINED_ON = {
     "dsnet_synthetic_low_fences.pt": (
         "trained on the synthetic worlds only (realistic, then realistic-low-crowns-low-fences)"
     ),
+    "dsnet_synthetic_mixed.pt": (
+        "trained on the synthetic worlds only (realistic, then realistic-low-crowns-low-fences,"
+        " -tight-materials and -raised-lots mixed by street)"
+    ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
     "dsnet_semantickitti_cpu.pt": (
         "trained on real scans of sequences 00-07, 09, 10 + rare instances pasted from synthetic streets"

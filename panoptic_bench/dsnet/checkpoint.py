@@ -57,6 +57,7 @@ SHIPPED: dict[str, str] = {
     "synthetic-low-crowns": "dsnet_synthetic_low_crowns.pt",
     "synthetic-fences": "dsnet_synthetic_fences.pt",
     "synthetic-low-fences": "dsnet_synthetic_low_fences.pt",
+    "synthetic-mixed": "dsnet_synthetic_mixed.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
