@@ -162,3 +162,15 @@ def test_row_18b_is_row_16_and_row_17_together():
     assert moved(row18) == moved(row16) | moved(row17) and moved(row16).isdisjoint(moved(row17))
     assert all(row18[k] == row16[k] for k in moved(row16))
     assert all(row18[k] == row17[k] for k in moved(row17))
+
+
+def test_side_street_world_is_row_15_plus_row_13_layout():
+    load = lambda name: load_profile(str(REPO / "configs" / f"{name}.yaml")).to_dict()  # noqa: E731
+    row15 = load("synth_realistic_low_crowns_low_fences")
+    row13 = load("synth_realistic_low_crowns_side_streets")
+    row9 = load("synth_realistic_materials_road_raised_verges_low_crowns")
+    world = load("synth_realistic_low_fences_side_streets")
+    layout = {k for k, v in row13.items() if row9[k] != v} - {"name"}
+    assert layout == {"side_street_prob", "ego_inner_lane", "ego_offset", "parking_road"}
+    assert {k for k, v in world.items() if row15[k] != v} - {"name"} == layout
+    assert all(world[k] == row13[k] for k in layout)
