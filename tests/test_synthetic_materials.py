@@ -152,25 +152,31 @@ def test_row_17_is_row_15_plus_raised_lots():
     assert changed == {"name", "lot_raise"}
 
 
+def _config_profile(name: str) -> dict:
+    """The ``to_dict()`` of ``configs/<name>.yaml``."""
+    return load_profile(str(REPO / "configs" / f"{name}.yaml")).to_dict()
+
+
+def _moved(row: dict, base: dict) -> set[str]:
+    """Keys whose value differs from ``base`` (the profile name aside)."""
+    return {k for k, v in row.items() if base[k] != v} - {"name"}
+
+
 def test_row_18b_is_row_16_and_row_17_together():
-    load = lambda name: load_profile(str(REPO / "configs" / f"{name}.yaml")).to_dict()  # noqa: E731
-    row15 = load("synth_realistic_low_crowns_low_fences")
-    row16 = load("synth_realistic_low_fences_tight_materials")
-    row17 = load("synth_realistic_low_fences_raised_lots")
-    row18 = load("synth_realistic_low_fences_tight_materials_raised_lots")
-    moved = lambda row: {k for k, v in row.items() if row15[k] != v} - {"name"}  # noqa: E731
-    assert moved(row18) == moved(row16) | moved(row17) and moved(row16).isdisjoint(moved(row17))
-    assert all(row18[k] == row16[k] for k in moved(row16))
-    assert all(row18[k] == row17[k] for k in moved(row17))
+    row15 = _config_profile("synth_realistic_low_crowns_low_fences")
+    row16 = _config_profile("synth_realistic_low_fences_tight_materials")
+    row17 = _config_profile("synth_realistic_low_fences_raised_lots")
+    row18 = _config_profile("synth_realistic_low_fences_tight_materials_raised_lots")
+    m16, m17 = _moved(row16, row15), _moved(row17, row15)
+    assert _moved(row18, row15) == m16 | m17 and m16.isdisjoint(m17)
+    assert all(row18[k] == row16[k] for k in m16) and all(row18[k] == row17[k] for k in m17)
 
 
 def test_side_street_world_is_row_15_plus_row_13_layout():
-    load = lambda name: load_profile(str(REPO / "configs" / f"{name}.yaml")).to_dict()  # noqa: E731
-    row15 = load("synth_realistic_low_crowns_low_fences")
-    row13 = load("synth_realistic_low_crowns_side_streets")
-    row9 = load("synth_realistic_materials_road_raised_verges_low_crowns")
-    world = load("synth_realistic_low_fences_side_streets")
-    layout = {k for k, v in row13.items() if row9[k] != v} - {"name"}
+    row13 = _config_profile("synth_realistic_low_crowns_side_streets")
+    row9 = _config_profile("synth_realistic_materials_road_raised_verges_low_crowns")
+    world = _config_profile("synth_realistic_low_fences_side_streets")
+    layout = _moved(row13, row9)
     assert layout == {"side_street_prob", "ego_inner_lane", "ego_offset", "parking_road"}
-    assert {k for k, v in world.items() if row15[k] != v} - {"name"} == layout
+    assert _moved(world, _config_profile("synth_realistic_low_crowns_low_fences")) == layout
     assert all(world[k] == row13[k] for k in layout)
