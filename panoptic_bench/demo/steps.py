@@ -179,7 +179,7 @@ TRAINED_ON = {
     ),
     "dsnet_synthetic_mixed.pt": (
         "trained on the synthetic worlds only (realistic, then realistic-low-crowns-low-fences,"
-        " -tight-materials and -raised-lots mixed by street)"
+        " realistic-low-fences-tight-materials and realistic-low-fences-raised-lots mixed by street)"
     ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
     "dsnet_semantickitti_cpu.pt": (
