@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from panoptic_bench.dsnet.config import AugmentConfig, DSNetConfig
-from panoptic_bench.dsnet.data.augment import augment_remission, tilt_points
+from panoptic_bench.dsnet.data.augment import augment_remission, class_remission_gain, tilt_points
 from panoptic_bench.dsnet.data.datasets import LidarSample, TrainingSet
 from panoptic_bench.dsnet.data.density import (
     DensityMatchedPredictor,
@@ -70,6 +70,7 @@ def test_config_keys_round_trip_and_validate():
                 "remission_zero_prob": 0.05,
                 "pitch_std_deg": 1.0,
                 "roll_std_deg": 1.5,
+                "remission_class_gain": [0.7, 1.4],
             },
             "inference": {"match_training_density": True},
         }
@@ -81,6 +82,7 @@ def test_config_keys_round_trip_and_validate():
         ({"remission_gain": [1.2, 0.8]}, "remission_gain"),
         ({"remission_zero_prob": 1.0}, "remission_zero_prob"),
         ({"pitch_std_deg": -1.0}, "pitch_std_deg"),
+        ({"remission_class_gain": [0.0, 1.5]}, "remission_class_gain"),
     ):
         with pytest.raises(InputError, match=key):
             DSNetConfig.from_dict({"augment": bad})
@@ -113,6 +115,43 @@ def test_training_set_remission_augmentation_leaves_geometry_stream_alone():
     np.testing.assert_array_equal(a.sem, b.sem)
     assert len(a.xyz) == 1000 and not np.array_equal(a.remission, b.remission)
     assert (b.remission == 0).mean() > 0.05
+
+
+def test_class_remission_gain_one_factor_per_class():
+    rem = np.array([0.2, 0.4, 0.2, 0.9, 0.5, 0.1], np.float32)
+    sem = np.array([9, 11, 9, 11, 0, 9])
+    rng = np.random.default_rng(5)
+    before = _state(rng)
+    np.testing.assert_array_equal(class_remission_gain(rem, sem, rng), rem)
+    assert _state(rng) == before  # (1, 1) draws nothing
+    # a fixed range is a fixed gain, clipped at 1: hand-worked
+    np.testing.assert_allclose(
+        class_remission_gain(rem, sem, rng, (2.0, 2.0)), [0.4, 0.8, 0.4, 1.0, 1.0, 0.2], rtol=1e-6
+    )
+    # property: within one class the ratio of any two points is kept; gains stay in range
+    big_rem = np.random.default_rng(1).uniform(0.01, 0.4, 5000).astype(np.float32)
+    big_sem = np.random.default_rng(2).integers(0, 20, 5000)
+    out = class_remission_gain(big_rem, big_sem, np.random.default_rng(3), (0.6, 1.6))
+    ratios = out / big_rem
+    for c in np.unique(big_sem):
+        r = ratios[big_sem == c]
+        assert np.ptp(r) < 1e-5 and 0.6 - 1e-6 <= r[0] <= 1.6 + 1e-6
+    assert np.unique(np.round(ratios, 4)).size == 20  # twenty classes, twenty gains
+    assert out.dtype == np.float32 and big_rem.max() <= 0.4  # input untouched
+
+
+def test_training_set_class_gain_has_its_own_stream():
+    base = AugmentConfig(max_points=1000, remission_gain=(0.8, 1.2))
+    cls_aug = dataclasses.replace(base, remission_class_gain=(0.5, 2.0))
+    a, b = TrainingSet(_Data(), base, seed=2)[0], TrainingSet(_Data(), cls_aug, seed=2)[0]
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    np.testing.assert_array_equal(a.sem, b.sem)
+    ratio = b.remission / np.maximum(a.remission, 1e-6)
+    keep = (a.remission > 0.05) & (a.remission < 0.999) & (b.remission < 0.999)
+    for c in np.unique(a.sem):  # the global gain is shared: one ratio per class
+        r = ratio[keep & (a.sem == c)]
+        assert np.ptp(r) < 1e-4
+    assert np.unique(np.round(ratio[keep], 3)).size == np.unique(a.sem).size
 
 
 def test_density_policy_spreads_to_nearest_kept_point():

@@ -17,7 +17,9 @@ class AugmentConfig:
     and :mod:`panoptic_bench.dsnet.data.density` for the shared policy.
 
     Remission (off by default): ``remission_gamma`` and ``remission_gain`` ranges (per scan,
-    ``r' = clip(gain * r ** gamma, 0, 1)``) and ``remission_zero_prob`` (per point, set to 0).
+    ``r' = clip(gain * r ** gamma, 0, 1)``) and ``remission_zero_prob`` (per point, set to 0);
+    ``remission_class_gain``: a log-uniform range of one extra gain per semantic class and scan,
+    applied first (:func:`panoptic_bench.dsnet.data.augment.class_remission_gain`).
     Pose (off by default): ``pitch_std_deg`` / ``roll_std_deg`` of a random sensor tilt.
     Scene mixing (off by default, :mod:`panoptic_bench.dsnet.data.mix`): with probability
     ``mix_prob`` a training scan is mixed with another training scan (of another sequence where
@@ -38,6 +40,7 @@ class AugmentConfig:
     remission_gain: tuple[float, float] = (1.0, 1.0)
     remission_gamma: tuple[float, float] = (1.0, 1.0)
     remission_zero_prob: float = 0.0
+    remission_class_gain: tuple[float, float] = (1.0, 1.0)
     pitch_std_deg: float = 0.0
     roll_std_deg: float = 0.0
     mix_prob: float = 0.0
@@ -56,7 +59,7 @@ class AugmentConfig:
         )
         if self.max_points < 0:
             problems.append("augment.max_points must be >= 0 (0 = keep every point)")
-        for name in ("remission_gain", "remission_gamma"):
+        for name in ("remission_gain", "remission_gamma", "remission_class_gain"):
             lo, hi = getattr(self, name)
             if not 0 < lo <= hi:
                 problems.append(f"augment.{name} must be 0 < lo <= hi, got {[lo, hi]}")

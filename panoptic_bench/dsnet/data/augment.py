@@ -117,6 +117,43 @@ def augment_remission(
     return out
 
 
+def class_remission_gain(
+    remission: np.ndarray,
+    sem: np.ndarray,
+    rng: np.random.Generator,
+    gain: tuple[float, float] = (1.0, 1.0),
+) -> np.ndarray:
+    """Per-class remission gain: every semantic class of a scan gets its own factor.
+
+    For each train id present in ``sem`` (in ascending order) one gain is drawn log-uniformly
+    from ``[gain[0], gain[1]]``; its points become ``clip(gain * r, 0, 1)``. This randomises how
+    bright the materials of a world are relative to each other (road against sidewalk, fence
+    against vegetation), so that a network cannot learn one world's material contrasts as a
+    class cue. Draws nothing for ``(1, 1)``.
+
+    Parameters
+    ----------
+    remission : ndarray of shape (n,), float32
+    sem : ndarray of shape (n,), integer
+        Train ids of the points (0 = unlabelled is a class of its own here).
+    rng : numpy.random.Generator
+    gain : (float, float)
+        ``0 < lo <= hi``.
+
+    Returns
+    -------
+    ndarray of shape (n,), float32
+    """
+    out = remission.astype(np.float32, copy=True)
+    if tuple(gain) == (1.0, 1.0):
+        return out
+    classes, inverse = np.unique(sem, return_inverse=True)
+    factors = np.exp(rng.uniform(math.log(gain[0]), math.log(gain[1]), size=classes.size))
+    return np.clip(out * factors.astype(np.float32)[inverse.reshape(-1)], 0.0, 1.0).astype(
+        np.float32
+    )
+
+
 def tilt_points(
     xyz: np.ndarray, rng: np.random.Generator, pitch_std_deg: float = 0.0, roll_std_deg: float = 0.0
 ) -> np.ndarray:

@@ -19,7 +19,12 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
-from panoptic_bench.dsnet.data.augment import augment_points, augment_remission, tilt_points
+from panoptic_bench.dsnet.data.augment import (
+    augment_points,
+    augment_remission,
+    class_remission_gain,
+    tilt_points,
+)
 from panoptic_bench.dsnet.data.density import thin
 from panoptic_bench.dsnet.data.mix import mix_pair
 from panoptic_bench.errors import InputError
@@ -365,6 +370,11 @@ class TrainingSet:
                 translate_std=aug.translate_std,
             )
             sample.xyz = tilt_points(sample.xyz, rng, aug.pitch_std_deg, aug.roll_std_deg)
+            if tuple(aug.remission_class_gain) != (1.0, 1.0):  # own stream: the others stay put
+                class_rng = np.random.default_rng([self.seed, self.epoch, index, 3])
+                sample.remission = class_remission_gain(
+                    sample.remission, sample.sem, class_rng, aug.remission_class_gain
+                )
             sample.remission = augment_remission(
                 sample.remission,
                 rng,
