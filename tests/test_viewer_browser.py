@@ -1,6 +1,8 @@
 """The viewer page in a real browser: headless Chromium with WebGL on SwiftShader.
 
-One screenshot of a full real scan (2 x 124,668 points) must show points in both views; an
+Chromium is driven over the DevTools protocol (``tests/browser_cdp.py``): each test waits for the
+page's own ready signal, not for a virtual-time budget (which, on a loaded machine, could run out
+before the first WebGL frame and leave Chromium hung). One screenshot of a full real scan (2 x 124,668 points) must show points in both views; an
 instrumented copy of a smaller page reports, from inside the browser, console errors, every
 resource the page loaded, the colours the page computed (checked against the evaluator's
 matching), the legend groups, the point-size control and the camera synchronisation.
@@ -9,31 +11,18 @@ matching), the legend groups, the point-size control and the camera synchronisat
 from __future__ import annotations
 
 import json
-import re
 import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from browser_cdp import Browser
 
 from panoptic_bench.cli import main
 from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.viewer.matching import match_segments
 from panoptic_bench.viewer.payload import subsample
 
-FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--enable-unsafe-swiftshader",
-    "--use-angle=swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--disable-default-apps",
-    "--no-first-run",
-    "--window-size=1400,900",
-]
 SMALL = 20_000
 
 PROBE = """<script>
@@ -85,6 +74,19 @@ async function __probe() {
 </script>"""
 
 
+# resolves, two animation frames after the viewer is up (or has shown an error), to the status text
+READY = """new Promise((done) => (function wait() {
+  const s = document.getElementById("pb-status");
+  if (window.pbViewer || (s && s.className === "error"))
+    requestAnimationFrame(() => requestAnimationFrame(() => done(s.className + ": " + s.textContent)));
+  else setTimeout(wait, 100);
+})())"""
+PROBED = """new Promise((done) => (function wait() {
+  const p = document.getElementById("pb-probe");
+  if (p) done(p.textContent); else setTimeout(wait, 100);
+})())"""
+
+
 @pytest.fixture(scope="module")
 def chromium() -> str:
     path = shutil.which("chromium")
@@ -114,21 +116,17 @@ def pages(tmp_path_factory, kitti_root):
     return {"full": full, "small": small, "gt": gt, "pred": pred}
 
 
-def _run(chromium: str, *args: str, timeout: int = 240) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [chromium, *FLAGS, *args], capture_output=True, text=True, timeout=timeout, check=False
-    )
-
-
 def test_screenshot_shows_points_in_both_views(chromium, pages, tmp_path):
     from PIL import Image
 
     shot = tmp_path / "shot.png"
-    res = _run(chromium, "--virtual-time-budget=20000", f"--screenshot={shot}",
-               pages["full"].as_uri())  # fmt: skip
-    assert shot.is_file(), res.stderr[-2000:]
-    console = [ln for ln in res.stderr.splitlines() if ":CONSOLE" in ln]
-    assert not [ln for ln in console if "Uncaught" in ln or "viewer:" in ln], console
+    with Browser(chromium) as browser:
+        browser.open(pages["full"].as_uri())
+        status = browser.evaluate(READY)
+        shot.write_bytes(browser.screenshot())
+        errors = [p for p in browser.problems() if not p.startswith("console.warning")]
+    assert status == "ready: ready", status
+    assert errors == [], errors
     img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     h, w, _ = img.shape
     plot = img[int(0.2 * h) : int(0.85 * h)]
@@ -142,10 +140,9 @@ def test_page_in_browser_no_errors_no_network_and_evaluator_colours(chromium, pa
     text = pages["small"].read_text()
     probe = tmp_path / "probe.html"
     probe.write_text(text.replace("<head>", "<head>\n" + PROBE, 1))
-    res = _run(chromium, "--virtual-time-budget=30000", "--dump-dom", probe.as_uri())
-    m = re.search(r'<pre id="pb-probe">(.*?)</pre>', res.stdout, re.S)
-    assert m, (res.stdout[-1000:], res.stderr[-2000:])
-    out = json.loads(m.group(1).replace("&amp;", "&").replace("&lt;", "<").replace("&gt;", ">"))
+    with Browser(chromium) as browser:
+        browser.open(probe.as_uri())
+        out = json.loads(browser.evaluate(PROBED))
     assert out["log"] == [] and out["status"] == "ready", out["log"]
     # nothing loaded from outside the file (the page itself is the only file: URL)
     assert all(r.startswith(("file:", "data:", "blob:")) for r in out["resources"]), out
