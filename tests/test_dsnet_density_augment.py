@@ -7,9 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
+from panoptic_bench.datasets import semantickitti as sk
 from panoptic_bench.dsnet.config import AugmentConfig, DSNetConfig
-from panoptic_bench.dsnet.data.augment import augment_remission, class_remission_gain, tilt_points
-from panoptic_bench.dsnet.data.datasets import LidarSample, TrainingSet
+from panoptic_bench.dsnet.data.augment import (
+    augment_remission,
+    class_ids,
+    class_remission_gain,
+    tilt_points,
+)
+from panoptic_bench.dsnet.data.datasets import ClassMap, LidarSample, TrainingSet
 from panoptic_bench.dsnet.data.density import (
     DensityMatchedPredictor,
     density_seed,
@@ -98,6 +104,10 @@ class _Data:
             np.zeros(n, np.int64),
             ("00", "000000"),
         )
+        lab = sk.LABELS
+        self.class_map = ClassMap(
+            "semantickitti", lab.class_names, lab.thing_ids, lab.stuff_ids, lab.ignore_ids
+        )
 
     def __len__(self) -> int:
         return 1
@@ -152,6 +162,41 @@ def test_training_set_class_gain_has_its_own_stream():
         r = ratio[keep & (a.sem == c)]
         assert np.ptp(r) < 1e-4
     assert np.unique(np.round(ratio[keep], 3)).size == np.unique(a.sem).size
+
+
+def test_class_gain_on_listed_classes_only():
+    rem = np.random.default_rng(1).uniform(0.01, 0.4, 3000).astype(np.float32)
+    sem = np.random.default_rng(2).integers(0, 20, 3000)
+    every = class_remission_gain(rem, sem, np.random.default_rng(3), (0.6, 1.6))
+    only = class_remission_gain(rem, sem, np.random.default_rng(3), (0.6, 1.6), np.array([9, 10]))
+    listed = np.isin(sem, [9, 10])
+    np.testing.assert_array_equal(only[listed], every[listed])  # the same draws as for every class
+    np.testing.assert_array_equal(only[~listed], rem[~listed])  # the rest untouched
+    assert not np.array_equal(only[listed], rem[listed])
+    # names -> train ids; an unknown name is one error naming the key
+    names = ("unlabeled", "car", "road", "parking")
+    np.testing.assert_array_equal(class_ids(names, ["road", "parking"], "k"), [2, 3])
+    assert class_ids(names, [], "k") is None
+    with pytest.raises(
+        InputError, match="augment.remission_class_gain_classes: unknown class 'lawn'"
+    ):
+        class_ids(names, ["lawn"], "augment.remission_class_gain_classes")
+
+
+def test_training_set_class_gain_on_named_classes():
+    base = AugmentConfig(max_points=1000, remission_class_gain=(0.5, 2.0))
+    data = _Data()
+    names = data.class_map.class_names
+    pick = names[int(np.unique(data.sample.sem)[1])]
+    only = dataclasses.replace(base, remission_class_gain_classes=(pick,))
+    a, b = TrainingSet(data, base, seed=2)[0], TrainingSet(_Data(), only, seed=2)[0]
+    plain = TrainingSet(_Data(), AugmentConfig(max_points=1000), seed=2)[0]
+    hit = b.sem == names.index(pick)
+    np.testing.assert_array_equal(b.remission[hit], a.remission[hit])
+    np.testing.assert_array_equal(b.remission[~hit], plain.remission[~hit])
+    bad = dataclasses.replace(base, remission_class_gain_classes=("lawn",))
+    with pytest.raises(InputError, match="remission_class_gain_classes"):
+        TrainingSet(_Data(), bad, seed=2)
 
 
 def test_density_policy_spreads_to_nearest_kept_point():

@@ -19,7 +19,8 @@ class AugmentConfig:
     Remission (off by default): ``remission_gamma`` and ``remission_gain`` ranges (per scan,
     ``r' = clip(gain * r ** gamma, 0, 1)``) and ``remission_zero_prob`` (per point, set to 0);
     ``remission_class_gain``: a log-uniform range of one extra gain per semantic class and scan,
-    applied first (:func:`panoptic_bench.dsnet.data.augment.class_remission_gain`).
+    applied first (:func:`panoptic_bench.dsnet.data.augment.class_remission_gain`), to the classes
+    named in ``remission_class_gain_classes`` (names of the dataset's class map; empty: every class).
     Pose (off by default): ``pitch_std_deg`` / ``roll_std_deg`` of a random sensor tilt.
     Scene mixing (off by default, :mod:`panoptic_bench.dsnet.data.mix`): with probability
     ``mix_prob`` a training scan is mixed with another training scan (of another sequence where
@@ -41,6 +42,7 @@ class AugmentConfig:
     remission_gamma: tuple[float, float] = (1.0, 1.0)
     remission_zero_prob: float = 0.0
     remission_class_gain: tuple[float, float] = (1.0, 1.0)
+    remission_class_gain_classes: tuple[str, ...] = ()
     pitch_std_deg: float = 0.0
     roll_std_deg: float = 0.0
     mix_prob: float = 0.0

@@ -7,6 +7,7 @@ four); scaling of x and y by U[0.95, 1.05]; translation by N(0, 0.1 m) per axis.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -117,11 +118,27 @@ def augment_remission(
     return out
 
 
+def class_ids(class_names: Sequence[str], names: Sequence[str], key: str) -> np.ndarray | None:
+    """Train ids of the classes ``names`` among ``class_names``; ``None`` when ``names`` is empty.
+
+    Raises :class:`~panoptic_bench.errors.InputError` naming ``key`` for an unknown name.
+    """
+    from panoptic_bench.errors import InputError
+
+    if not names:
+        return None
+    for name in names:
+        if name not in class_names:
+            raise InputError(f"{key}: unknown class {name!r}; classes: " + ", ".join(class_names))
+    return np.asarray([list(class_names).index(n) for n in names], dtype=np.int64)
+
+
 def class_remission_gain(
     remission: np.ndarray,
     sem: np.ndarray,
     rng: np.random.Generator,
     gain: tuple[float, float] = (1.0, 1.0),
+    only: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-class remission gain: every semantic class of a scan gets its own factor.
 
@@ -129,7 +146,8 @@ def class_remission_gain(
     from ``[gain[0], gain[1]]``; its points become ``clip(gain * r, 0, 1)``. This randomises how
     bright the materials of a world are relative to each other (road against sidewalk, fence
     against vegetation), so that a network cannot learn one world's material contrasts as a
-    class cue. Draws nothing for ``(1, 1)``.
+    class cue. Draws nothing for ``(1, 1)``. With ``only``, the factors are drawn exactly as
+    without it and then applied to the listed classes alone (every other point keeps its value).
 
     Parameters
     ----------
@@ -139,6 +157,8 @@ def class_remission_gain(
     rng : numpy.random.Generator
     gain : (float, float)
         ``0 < lo <= hi``.
+    only : ndarray of int, optional
+        Train ids whose points get their factor; ``None``: every class.
 
     Returns
     -------
@@ -149,6 +169,8 @@ def class_remission_gain(
         return out
     classes, inverse = np.unique(sem, return_inverse=True)
     factors = np.exp(rng.uniform(math.log(gain[0]), math.log(gain[1]), size=classes.size))
+    if only is not None:
+        factors[~np.isin(classes, only)] = 1.0
     return np.clip(out * factors.astype(np.float32)[inverse.reshape(-1)], 0.0, 1.0).astype(
         np.float32
     )

@@ -22,6 +22,7 @@ from panoptic_bench.dsnet.config import AugmentConfig, DataConfig, DatasetFormat
 from panoptic_bench.dsnet.data.augment import (
     augment_points,
     augment_remission,
+    class_ids,
     class_remission_gain,
     tilt_points,
 )
@@ -319,6 +320,11 @@ class TrainingSet:
         self.seed = seed
         self.bank = bank
         self.epoch = 0
+        self._gain_only = class_ids(
+            dataset.class_map.class_names,
+            augment.remission_class_gain_classes if augment is not None else (),
+            "augment.remission_class_gain_classes",
+        )
 
     def set_epoch(self, epoch: int) -> None:
         """Select the augmentation stream of ``epoch`` (call before iterating)."""
@@ -373,7 +379,11 @@ class TrainingSet:
             if tuple(aug.remission_class_gain) != (1.0, 1.0):  # own stream: the others stay put
                 class_rng = np.random.default_rng([self.seed, self.epoch, index, 3])
                 sample.remission = class_remission_gain(
-                    sample.remission, sample.sem, class_rng, aug.remission_class_gain
+                    sample.remission,
+                    sample.sem,
+                    class_rng,
+                    aug.remission_class_gain,
+                    self._gain_only,
                 )
             sample.remission = augment_remission(
                 sample.remission,
