@@ -320,11 +320,9 @@ class TrainingSet:
         self.seed = seed
         self.bank = bank
         self.epoch = 0
-        self._gain_only = class_ids(
-            dataset.class_map.class_names,
-            augment.remission_class_gain_classes if augment is not None else (),
-            "augment.remission_class_gain_classes",
-        )
+        names = augment.remission_class_gain_classes if augment is not None else ()
+        key = "augment.remission_class_gain_classes"  # class_map is only read when names are given
+        self._gain_only = class_ids(dataset.class_map.class_names, names, key) if names else None
 
     def set_epoch(self, epoch: int) -> None:
         """Select the augmentation stream of ``epoch`` (call before iterating)."""
