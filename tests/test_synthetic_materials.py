@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from panoptic_bench.datasets.synthetic import Sequence
-from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile, load_profile
+from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
+from panoptic_bench.datasets.synthetic.profile_files import load_profile
 from panoptic_bench.datasets.synthetic.realism import MEASURES, aggregate, scan_measures
 from panoptic_bench.datasets.synthetic.realism_materials import material_measures
 from panoptic_bench.errors import InputError

@@ -19,8 +19,8 @@ from panoptic_bench.datasets.synthetic.profile import (
     CLASSIC,
     REALISTIC,
     WorldProfile,
-    load_profile,
 )
+from panoptic_bench.datasets.synthetic.profile_files import load_profile
 from panoptic_bench.datasets.synthetic.realism import aggregate, recover_rings, scan_measures
 from panoptic_bench.datasets.synthetic.sensor_real import rough_field, tilt_matrix
 from panoptic_bench.errors import InputError
@@ -123,6 +123,32 @@ def test_profile_round_trip_and_rejects_bad_keys(tmp_path: Path):
         load_profile(str(bad))
     with pytest.raises(InputError, match="unknown profile"):
         load_profile("nope")
+
+
+def test_profile_file_on_another_profile_file(tmp_path):
+    sub = tmp_path / "worlds"
+    sub.mkdir()
+    (sub / "a.yaml").write_text("base: realistic\nname: a\nfence_lattice: 0.25\n")
+    (tmp_path / "b.yaml").write_text("base: worlds/a.yaml\nname: b\nparked_bus: 0.03\n")
+    b = load_profile(str(tmp_path / "b.yaml"))  # the base is found relative to b.yaml
+    want = dataclasses.replace(REALISTIC, name="b", fence_lattice=0.25, parked_bus=0.03)
+    assert b == want
+    shipped = REPO / "configs" / "synth_realistic_low_fences_raised_lots.yaml"
+    (tmp_path / "c.yaml").write_text(f"base: {shipped}\nparked_bus: 0.03\n")  # absolute works
+    c = load_profile(str(tmp_path / "c.yaml"))
+    assert c == dataclasses.replace(load_profile(str(shipped)), parked_bus=0.03)
+    (tmp_path / "loop1.yaml").write_text("base: loop2.yaml\n")
+    (tmp_path / "loop2.yaml").write_text("base: loop1.yaml\n")
+    with pytest.raises(InputError, match="loop") as err:
+        load_profile(str(tmp_path / "loop1.yaml"))
+    assert "loop" in str(err.value) and ".yaml" in str(err.value)
+    (tmp_path / "missing.yaml").write_text("base: nowhere.yaml\n")
+    with pytest.raises(InputError, match="cannot read profile") as err:
+        load_profile(str(tmp_path / "missing.yaml"))
+    assert "nowhere.yaml" in str(err.value)
+    (tmp_path / "typed.yaml").write_text("base: 3\n")
+    with pytest.raises(InputError, match="unknown base profile 3"):
+        load_profile(str(tmp_path / "typed.yaml"))
 
 
 def test_tilt_matrix_signs():

@@ -115,7 +115,7 @@ def test_road_far_to_the_side_by_hand():
 
 def test_out_of_range_value_in_a_profile_file_names_the_file(tmp_path, capsys):
     from panoptic_bench.cli import main
-    from panoptic_bench.datasets.synthetic.profile import load_profile
+    from panoptic_bench.datasets.synthetic.profile_files import load_profile
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("base: realistic\nside_street_prob: 1.5\n")

@@ -109,7 +109,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def semantickitti(args: argparse.Namespace) -> int:
     """Handler of ``synth semantickitti``."""
-    from panoptic_bench.datasets.synthetic.profile import load_profile
+    from panoptic_bench.datasets.synthetic.profile_files import load_profile
     from panoptic_bench.datasets.synthetic.writers import generate_semantickitti, parse_sequences
     from panoptic_bench.io import output_tree
 
@@ -128,7 +128,7 @@ def semantickitti(args: argparse.Namespace) -> int:
 
 def nuscenes(args: argparse.Namespace) -> int:
     """Handler of ``synth nuscenes``."""
-    from panoptic_bench.datasets.synthetic.profile import load_profile
+    from panoptic_bench.datasets.synthetic.profile_files import load_profile
     from panoptic_bench.datasets.synthetic.writers import generate_nuscenes
     from panoptic_bench.io import output_tree
 
@@ -151,7 +151,7 @@ def nuscenes(args: argparse.Namespace) -> int:
 
 def stats_handler(args: argparse.Namespace) -> int:
     """Handler of ``synth stats``."""
-    from panoptic_bench.datasets.synthetic.profile import load_profile
+    from panoptic_bench.datasets.synthetic.profile_files import load_profile
     from panoptic_bench.datasets.synthetic.stats import compare
 
     real, synth = compare(

@@ -8,7 +8,8 @@ are never used to train or tune a model). Every feature absent from the classic 
 :data:`CLASSIC` and draws no random number, so the classic random streams are unchanged.
 
 Select one with ``--profile classic|realistic`` or a YAML file of overrides
-(``configs/synth_realistic.yaml``: ``base: realistic`` plus any keys below).
+(``configs/synth_realistic.yaml``: ``base: realistic`` plus any keys below; the base may also be
+another profile file, :mod:`~panoptic_bench.datasets.synthetic.profile_files`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,6 @@ __all__ = [
     "PROFILES",
     "REALISTIC",
     "WorldProfile",
-    "load_profile",
 ]
 
 
@@ -104,7 +104,8 @@ class WorldProfile:
       ``lot_raise``: (low, high) height (m) of building forecourts and plazas built as raised
       boxes (paved: the sidewalk's reflectivity; grass: ``terrain_reflect``), its own stream;
       empty = painted on the ground at road level;
-      ``parked_fill``: fraction of parking strips filled with cars;
+      ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: share of the
+      parked places that hold a bus (other-vehicle; 0 = none, the original draws);
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
       ``trunk_height``: (low, high) bare trunk below a tree's crown (m; the crown sits on it, so a
@@ -161,6 +162,7 @@ class WorldProfile:
     parking_prob: float = 0.45
     parking_road: float = 0.0
     parked_fill: float = 1.0
+    parked_bus: float = 0.0
     ped_spacing: float = 30.0
     bike_spacing: float = 60.0
     cyclist_spacing: float = 70.0
@@ -213,6 +215,7 @@ class WorldProfile:
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,
             "verge_prob": 0.0 <= self.verge_prob <= 1.0,
             "parked_fill": 0.0 <= self.parked_fill <= 1.0,
+            "parked_bus": 0.0 <= self.parked_bus <= 0.5,
             "lead_car_prob": 0.0 <= self.lead_car_prob <= 1.0,
             "back_row_prob": 0.0 <= self.back_row_prob <= 1.0,
             "rem_dark_prob": 0.0 <= self.rem_dark_prob <= 1.0,
@@ -372,34 +375,3 @@ REALISTIC = WorldProfile(
 )
 
 PROFILES = {"classic": CLASSIC, "realistic": REALISTIC}
-
-
-def load_profile(spec: str | WorldProfile | None) -> WorldProfile:
-    """A profile by name (``classic``, ``realistic``), from a YAML file, or as given.
-
-    A YAML file holds a mapping of overrides and an optional ``base`` (a profile name).
-    """
-    if spec is None:
-        return CLASSIC
-    if isinstance(spec, WorldProfile):
-        return spec
-    if spec in PROFILES:
-        return PROFILES[spec]
-    path = Path(spec)
-    if path.suffix not in (".yaml", ".yml"):
-        raise InputError(f"unknown profile {spec!r}; use classic, realistic or a .yaml file")
-    import yaml
-
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise InputError(f"cannot read profile ({exc.strerror})", path) from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"profile is not valid YAML ({exc})", path) from None
-    if not isinstance(data, dict):
-        raise InputError("a profile file must be a mapping", path)
-    data = dict(data)
-    base = data.pop("base", "classic")
-    if base not in PROFILES:
-        raise InputError(f"unknown base profile {base!r}; use classic or realistic", path)
-    return WorldProfile.from_dict(data, path, base=PROFILES[base])

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from panoptic_bench.datasets.synthetic.profile import WorldProfile, load_profile
+from panoptic_bench.datasets.synthetic.profile import WorldProfile
+from panoptic_bench.datasets.synthetic.profile_files import load_profile
 from panoptic_bench.datasets.synthetic.scene import Scene, generate_scene
 from panoptic_bench.datasets.synthetic.sensor import HDL64E, LidarModel, Sweep, sweep
 from panoptic_bench.datasets.synthetic.sensor_real import SensorState, sensor_state, sweep_realistic

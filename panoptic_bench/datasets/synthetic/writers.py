@@ -141,7 +141,7 @@ def generate_semantickitti(
     Path
         The dataset root.
     """
-    from panoptic_bench.datasets.synthetic.profile import load_profile
+    from panoptic_bench.datasets.synthetic.profile_files import load_profile
 
     profiles = [
         load_profile(p) for p in (profile if isinstance(profile, list | tuple) else [profile])
@@ -300,7 +300,7 @@ def generate_nuscenes(
         The dataroot.
     """
     from panoptic_bench.datasets.nuscenes import SceneSpec, write_dataset
-    from panoptic_bench.datasets.synthetic.profile import load_profile
+    from panoptic_bench.datasets.synthetic.profile_files import load_profile
 
     profile = load_profile(profile)
 
