@@ -129,14 +129,14 @@ def test_profile_file_on_another_profile_file(tmp_path):
     sub = tmp_path / "worlds"
     sub.mkdir()
     (sub / "a.yaml").write_text("base: realistic\nname: a\nfence_lattice: 0.25\n")
-    (tmp_path / "b.yaml").write_text("base: worlds/a.yaml\nname: b\nparked_bus: 0.03\n")
+    (tmp_path / "b.yaml").write_text("base: worlds/a.yaml\nname: b\nkerb: [0.05, 0.1]\n")
     b = load_profile(str(tmp_path / "b.yaml"))  # the base is found relative to b.yaml
-    want = dataclasses.replace(REALISTIC, name="b", fence_lattice=0.25, parked_bus=0.03)
+    want = dataclasses.replace(REALISTIC, name="b", fence_lattice=0.25, kerb=(0.05, 0.1))
     assert b == want
     shipped = REPO / "configs" / "synth_realistic_low_fences_raised_lots.yaml"
-    (tmp_path / "c.yaml").write_text(f"base: {shipped}\nparked_bus: 0.03\n")  # absolute works
+    (tmp_path / "c.yaml").write_text(f"base: {shipped}\nlamp_keep: 0.5\n")  # absolute works
     c = load_profile(str(tmp_path / "c.yaml"))
-    assert c == dataclasses.replace(load_profile(str(shipped)), parked_bus=0.03)
+    assert c == dataclasses.replace(load_profile(str(shipped)), lamp_keep=0.5)
     (tmp_path / "loop1.yaml").write_text("base: loop2.yaml\n")
     (tmp_path / "loop2.yaml").write_text("base: loop1.yaml\n")
     with pytest.raises(InputError, match="loop") as err:

@@ -202,24 +202,3 @@ def test_lamp_keys_thin_the_lamp_poles_and_hang_signs_on_them_only():
         WorldProfile(lamp_keep=-0.1)
     with pytest.raises(InputError, match="lamp_sign_half"):
         WorldProfile(lamp_sign_half=(0.01, 0.5))
-
-
-def test_parked_bus_puts_buses_in_parking_rows_only_when_asked():
-    from panoptic_bench.datasets.synthetic.scene import generate_scene
-    from panoptic_bench.datasets.synthetic.street import PARKING_WIDTH
-
-    prof = dataclasses.replace(REALISTIC, parking_prob=0.8, parked_fill=1.0)
-    buses = 0
-    for seed in range(4):
-        plain = generate_scene(seed, 1.0, profile=prof)
-        assert not [t for t in plain.things if t.category == "bus" and not t.velocity.any()]
-        scene = generate_scene(seed, 1.0, profile=dataclasses.replace(prof, parked_bus=0.5))
-        parked = [t for t in scene.things if t.category == "bus" and not t.velocity.any()]
-        buses += len(parked)
-        for t in parked:  # a static bus (raw 13 = other-vehicle), standing in a parking strip
-            assert t.label == 13 and 10.0 <= t.size[0] <= 12.5
-            lateral = abs(t.xyz[1]) - (scene.plan.road_half + PARKING_WIDTH / 2)
-            assert abs(lateral) < 0.5
-    assert buses >= 2
-    with pytest.raises(InputError, match="parked_bus"):
-        WorldProfile.from_dict({"parked_bus": 0.9})

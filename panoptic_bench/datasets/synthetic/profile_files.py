@@ -7,7 +7,7 @@ of an existing world is then two lines, ``base: that_world.yaml`` and the key::
 
     # configs/synth_example.yaml
     base: synth_realistic_low_crowns_low_fences.yaml
-    parked_bus: 0.03
+    fence_lattice: 0.5
 """
 
 from __future__ import annotations

@@ -97,9 +97,6 @@ class Scene:
 def _parked_rows(rng, plan: StreetPlan, things: list[Thing]) -> None:
     cats = ["car", "truck", "other-vehicle", "motorcycle", None]
     probs = [0.86, 0.04, 0.03, 0.03, 0.04]
-    bus = plan.profile.parked_bus
-    if bus > 0:  # 0: the original categories and draws
-        cats, probs = [*cats, "bus"], [p * (1.0 - bus) for p in probs] + [bus]
     fill = plan.profile.parked_fill
     for side, x0, x1 in plan.parking:
         if fill < 1.0 and rng.random() >= fill:
