@@ -202,3 +202,63 @@ def test_lamp_keys_thin_the_lamp_poles_and_hang_signs_on_them_only():
         WorldProfile(lamp_keep=-0.1)
     with pytest.raises(InputError, match="lamp_sign_half"):
         WorldProfile(lamp_sign_half=(0.01, 0.5))
+
+
+def test_parked_buses_replace_parked_cars_and_nothing_else():
+    from panoptic_bench.datasets.synthetic.scene import generate_scene
+
+    base = dataclasses.replace(REALISTIC, parking_prob=0.8, parked_fill=1.0)
+    buses = 0
+    for seed in range(4):
+        a = generate_scene(seed, 1.0, profile=base)
+        b = generate_scene(seed, 1.0, profile=dataclasses.replace(base, parked_bus=0.3))
+        # own stream: street, ego and every moving or sidewalk thing are unchanged
+        np.testing.assert_array_equal(a.static.center, b.static.center)
+        assert (a.ego_y, a.ego_phase, a.ego_speed) == (b.ego_y, b.ego_phase, b.ego_speed)
+        key = [(t.category, *t.xyz) for t in a.things if t.moving or t.category != "car"]
+        new = [t for t in b.things if t.category == "bus" and not t.moving]
+        assert not [t for t in a.things if t.category == "bus" and not t.moving]
+        left = [(t.category, *t.xyz) for t in b.things if t.moving or t.category != "car"]
+        assert set(left) - set(key) == {(t.category, *t.xyz) for t in new}
+        buses += len(new)
+        parked = sorted(
+            (t for t in b.things if not t.moving and abs(t.xyz[1]) > 2), key=lambda t: t.xyz[0]
+        )
+        for t in new:  # a static bus (raw 13 = other-vehicle) inside a strip, overlapping nothing
+            assert t.label == 13 and 10.0 <= t.size[0] <= 12.5
+            lo, hi = t.xyz[0] - t.size[0] / 2, t.xyz[0] + t.size[0] / 2
+            assert any(
+                s == np.sign(t.xyz[1]) and x0 <= lo and hi <= x1 for s, x0, x1 in b.plan.parking
+            )
+            for o in parked:
+                if (
+                    o is not t
+                    and np.sign(o.xyz[1]) == np.sign(t.xyz[1])
+                    and abs(o.xyz[1] - t.xyz[1]) < 1
+                ):
+                    assert o.xyz[0] + o.size[0] / 2 <= lo or o.xyz[0] - o.size[0] / 2 >= hi
+    assert buses >= 2
+    with pytest.raises(InputError, match="parked_bus"):
+        WorldProfile.from_dict({"parked_bus": 1.5})
+
+
+def test_park_buses_hand_worked():
+    from panoptic_bench.datasets.synthetic.buses import park_buses
+    from panoptic_bench.datasets.synthetic.things import build
+
+    rng = np.random.default_rng(0)
+    cars = [build(rng, "car", (x, -6.0, 0.0), 0.0) for x in (3.0, 8.0, 13.0, 18.0, 40.0)]
+    out = park_buses(np.random.default_rng(1), cars, [(-1, 0.0, 45.0)], 1.0)
+    # share 1: the car at 3 m becomes a bus from its rear end (10-12.5 m long) and covers the cars
+    # at 8 and 13 m; the car at 18 m becomes the next bus; the one at 40 m stays a car (a bus from
+    # its rear end would leave the strip at 45 m)
+    assert [t.category for t in out] == ["bus", "bus", "car"]
+    first, second, last = out
+    assert first.xyz[0] - first.size[0] / 2 == pytest.approx(3.0 - cars[0].size[0] / 2)
+    assert second.xyz[0] - second.size[0] / 2 == pytest.approx(18.0 - cars[3].size[0] / 2)
+    assert first.xyz[1] == second.xyz[1] == -6.0 and last is cars[4]
+    assert cars[0].category == "car"  # input untouched
+    none = park_buses(np.random.default_rng(1), cars, [(-1, 0.0, 45.0)], 0.0)
+    assert [t.category for t in none] == ["car"] * 5
+    short = park_buses(np.random.default_rng(1), cars, [(-1, 0.0, 10.0), (-1, 10.0, 45.0)], 1.0)
+    assert short[0].category == "car"  # a bus may not leave its strip

@@ -104,7 +104,8 @@ class WorldProfile:
       ``lot_raise``: (low, high) height (m) of building forecourts and plazas built as raised
       boxes (paved: the sidewalk's reflectivity; grass: ``terrain_reflect``), its own stream;
       empty = painted on the ground at road level;
-      ``parked_fill``: fraction of parking strips filled with cars;
+      ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: probability
+      that a parked car is a bus instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own stream;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
       ``trunk_height``: (low, high) bare trunk below a tree's crown (m; the crown sits on it, so a
@@ -161,6 +162,7 @@ class WorldProfile:
     parking_prob: float = 0.45
     parking_road: float = 0.0
     parked_fill: float = 1.0
+    parked_bus: float = 0.0
     ped_spacing: float = 30.0
     bike_spacing: float = 60.0
     cyclist_spacing: float = 70.0
@@ -213,6 +215,7 @@ class WorldProfile:
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,
             "verge_prob": 0.0 <= self.verge_prob <= 1.0,
             "parked_fill": 0.0 <= self.parked_fill <= 1.0,
+            "parked_bus": 0.0 <= self.parked_bus <= 1.0,
             "lead_car_prob": 0.0 <= self.lead_car_prob <= 1.0,
             "back_row_prob": 0.0 <= self.back_row_prob <= 1.0,
             "rem_dark_prob": 0.0 <= self.rem_dark_prob <= 1.0,

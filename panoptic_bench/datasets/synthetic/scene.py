@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from panoptic_bench.datasets.synthetic.buses import park_buses
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.profile import WorldProfile
 from panoptic_bench.datasets.synthetic.profile_files import load_profile
@@ -234,6 +235,7 @@ def generate_scene(
             ego_lane = 0
     things: list[Thing] = []
     _parked_rows(rng, plan, things)
+    n_parked = len(things)
     _sidewalk(rng, plan, x_range, things)
     _traffic(rng, plan, x_range, ego_lane, speed, things)
     ego_y = -(ego_lane + 0.5) * plan.lane_width
@@ -241,4 +243,10 @@ def generate_scene(
         # its own stream (spawning does not advance ``rng``): streets, things and phase unchanged
         shift = float(rng.spawn(1)[0].uniform(*plan.profile.ego_offset))
         ego_y += min(shift, plan.lane_width / 2 - EGO_LANE_MARGIN)
+    if plan.profile.parked_bus:
+        # its own stream, spawned after every other one: the rest of the scene is unchanged
+        buses = park_buses(
+            rng.spawn(1)[0], things[:n_parked], plan.parking, plan.profile.parked_bus
+        )
+        things = buses + things[n_parked:]
     return Scene(static, ground, plan, things, speed, ego_y, float(rng.uniform(0, 2 * np.pi)))
