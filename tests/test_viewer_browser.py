@@ -2,8 +2,8 @@
 
 Chromium is driven over the DevTools protocol (``tests/browser_cdp.py``): each test waits for the
 page's own ready signal, not for a virtual-time budget (which, on a loaded machine, could run out
-before the first WebGL frame and leave Chromium hung). One screenshot of a full real scan (2 x 124,668 points) must show points in both views; an
-instrumented copy of a smaller page reports, from inside the browser, console errors, every
+before the first WebGL frame and leave Chromium hung). One screenshot of a full real scan
+(2 x 124,668 points) must show points in both views; an instrumented copy of a smaller page reports, from inside the browser, console errors, every
 resource the page loaded, the colours the page computed (checked against the evaluator's
 matching), the legend groups, the point-size control and the camera synchronisation.
 """
