@@ -1,4 +1,4 @@
-"""``panoptic-bench checkpoint``: inspect a DS-Net checkpoint or export a small release copy."""
+"""``panoptic-bench checkpoint``: inspect, export, average or import DS-Net checkpoints."""
 
 from __future__ import annotations
 
@@ -25,6 +25,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     exp.add_argument("--half", action="store_true", help="store weights as float16")
     exp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     exp.set_defaults(func=export_handler)
+    avg = sub.add_parser(
+        "average",
+        help="average the weights of checkpoints of one network (a model soup)",
+        description="Write one checkpoint whose weights are the (weighted) mean of two or more "
+        "checkpoints of the same network, stage and class map, e.g. the seeds of one recipe "
+        "fine-tuned from the same start. BatchNorm statistics are averaged too; no data is read.",
+    )
+    avg.add_argument("checkpoints", nargs="+", help=".pt files or shipped short names")
+    avg.add_argument("--out", required=True, help="destination .pt")
+    avg.add_argument(
+        "--weights",
+        type=float,
+        nargs="+",
+        help="one positive weight per checkpoint (default equal)",
+    )
+    avg.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    avg.set_defaults(func=average_handler)
     imp = sub.add_parser(
         "import-dsnet",
         help="convert an official DS-Net checkpoint (sem_pretrain / offset_pretrain / dsnet_pretrain)",
@@ -72,6 +89,24 @@ def export_handler(args: argparse.Namespace) -> int:
     check_output_file(args.out, overwrite=args.overwrite, inputs=(src,))
     out = export_checkpoint(src, args.out, half=args.half)
     print(f"{out} ({Path(out).stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def average_handler(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from panoptic_bench.dsnet.checkpoint import resolve_checkpoint, save_checkpoint
+    from panoptic_bench.dsnet.soup import average_checkpoints
+    from panoptic_bench.io import check_output_file
+
+    srcs = [resolve_checkpoint(c) for c in args.checkpoints]
+    check_output_file(args.out, overwrite=args.overwrite, inputs=tuple(srcs))
+    ck = average_checkpoints(srcs, args.weights)
+    save_checkpoint(ck, args.out)
+    print(
+        f"{args.out}: stage {ck.stage}, average of {len(srcs)} checkpoints "
+        f"({Path(args.out).stat().st_size / 1e6:.1f} MB)"
+    )
     return 0
 
 
