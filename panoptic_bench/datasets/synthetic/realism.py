@@ -57,6 +57,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     SIDEWALK,
     SIGN,
     TERRAIN,
+    VEGETATION,
 )
 from panoptic_bench.datasets.synthetic.realism_layout import (
     GROUND,
@@ -100,6 +101,11 @@ MEASURES: dict[str, tuple[str, str]] = {
     "road_jitter_mm": ("ground: road jitter, 2nd z difference along the ring (mm)", "median"),
     "sidewalk_jitter_mm": ("ground: sidewalk jitter (mm)", "median"),
     "terrain_jitter_mm": ("ground: terrain jitter (mm)", "median"),
+    "vegetation_texture_mm": (
+        "content: vegetation texture, 2nd range difference along the ring, 3-20 m (mm)",
+        "median",
+    ),
+    "building_texture_mm": ("content: building texture, the same measure (mm)", "median"),
     "below_185_pct": ("ground: % of points below z = -1.85 m", "mean"),
     "verge_terrain_pct": ("layout: % terrain among the ground points beside the road", "mean"),
     "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
@@ -214,6 +220,23 @@ def _jitter(x, y, z, r, mask: np.ndarray) -> float:
     return 1000.0 * 1.4826 * float(np.median(np.abs(d - np.median(d))))
 
 
+def _range_texture(x, y, r, mask: np.ndarray) -> float:
+    """Robust std (mm) of the second range difference over in-class ring neighbours, 3-20 m.
+
+    Neighbours are consecutive points in recording order less than 0.01 rad apart in azimuth
+    (the same ring, at most a few columns apart), so depth jumps inside a porous surface such as
+    a bush count, where :func:`_jitter`'s 0.5 m step would drop them.
+    """
+    if mask.size < 3:
+        return float("nan")
+    near = np.abs(np.diff(np.arctan2(y, x))) < 0.01
+    ok = mask[1:-1] & mask[:-2] & mask[2:] & near[:-1] & near[1:] & (r[1:-1] >= 3) & (r[1:-1] < 20)
+    if ok.sum() < 50:
+        return float("nan")
+    d = (r[1:-1] - (r[:-2] + r[2:]) / 2)[ok]
+    return 1000.0 * 1.4826 * float(np.median(np.abs(d - np.median(d))))
+
+
 def scan_measures(
     points: np.ndarray, labels: np.ndarray
 ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
@@ -298,6 +321,9 @@ def scan_measures(
     m["road_far_right_pct"], m["road_far_left_pct"] = road_far(x, y, raw)
     for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
         m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
+    rho = np.sqrt(r**2 + z**2)
+    m["vegetation_texture_mm"] = _range_texture(x, y, rho, raw == VEGETATION)
+    m["building_texture_mm"] = _range_texture(x, y, rho, raw == BUILDING)
     ring = recover_rings(points[:, :3])
     ring_points = np.bincount(ring, minlength=N_RINGS)[:N_RINGS]
     elev = np.degrees(np.arctan2(z, r))

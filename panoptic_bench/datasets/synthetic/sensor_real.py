@@ -231,6 +231,8 @@ def sweep_realistic(
     reflect[obj] = local.reflect[p]
     gain[obj] = state.gain[p]
     rough[obj] = local.rough[p]
+    if profile.veg_rough != 1.0:
+        rough = np.where(label == VEGETATION, profile.veg_rough * rough, rough).astype(np.float32)
     owner = local.owner[p]
     instance[obj] = np.where(owner >= 0, owner + 1, 0).astype(np.uint32)
 
