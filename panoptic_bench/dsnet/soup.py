@@ -85,7 +85,7 @@ def average_checkpoints(
     weights = [float(w) for w in weights]
     if len(weights) != len(paths):
         raise InputError(f"{len(weights)} weights for {len(paths)} checkpoints")
-    if any(not w > 0 or w != w or w == float("inf") for w in weights):
+    if not all(0.0 < w < float("inf") for w in weights):  # NaN fails both comparisons
         raise InputError(f"weights must be positive finite numbers, got {weights}")
     total = sum(weights)
     weights = [w / total for w in weights]
