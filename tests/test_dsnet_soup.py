@@ -3,6 +3,7 @@ properties of the average, the averaged network's outputs, and bad inputs."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,54 +11,14 @@ import pytest
 import torch
 
 from panoptic_bench.cli import main
-from panoptic_bench.dsnet.checkpoint import (
-    Checkpoint,
-    build_backbone,
-    build_shift,
-    load_checkpoint,
-    save_checkpoint,
-)
+from panoptic_bench.dsnet.checkpoint import build_backbone, load_checkpoint, save_checkpoint
 from panoptic_bench.dsnet.soup import average_checkpoints, average_states
 from panoptic_bench.errors import InputError
 
-REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).parent))
+from dsnet_tiny_checkpoints import write_tiny_checkpoint  # noqa: E402
 
-
-def _config(init_size: int = 4):
-    from panoptic_bench.dsnet.config import DSNetConfig, load_config
-
-    raw = load_config(REPO / "configs" / "dsnet_semantickitti.yaml").to_dict()
-    raw["grid"]["size"] = [32, 32, 8]
-    raw["model"].update(init_size=init_size, point_hidden=[8], point_feature_dim=8, offset_hidden=8)
-    raw["dynamic_shift"]["max_seeds"] = 200
-    return DSNetConfig.from_dict(raw)
-
-
-def _class_map():
-    from panoptic_bench.datasets.semantickitti import LABELS
-    from panoptic_bench.dsnet.data.datasets import ClassMap
-
-    lab = LABELS
-    return ClassMap("semantickitti", lab.class_names, lab.thing_ids, lab.stuff_ids, lab.ignore_ids)
-
-
-def _write(path: Path, seed: int, stage: str = "ds", init_size: int = 4) -> Path:
-    """A random tiny checkpoint; BatchNorm running statistics are randomised too."""
-    cfg = _config(init_size)
-    cmap = _class_map()
-    torch.manual_seed(seed)
-    backbone = build_backbone(cfg, cmap.num_classes)
-    state = backbone.state_dict()
-    for key, value in state.items():
-        if "running_mean" in key:
-            value.normal_()
-        elif "running_var" in key:
-            value.uniform_(0.5, 2.0)
-        elif key.endswith("num_batches_tracked"):
-            value.fill_(10 + seed)
-    shift = build_shift(cfg, cfg.model.init_size).state_dict() if stage == "ds" else None
-    save_checkpoint(Checkpoint(stage, 3, cfg, cmap, state, shift), path)
-    return path
+_write = write_tiny_checkpoint
 
 
 @pytest.fixture(scope="module")

@@ -53,6 +53,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default: the checkpoint config's inference.tta_views, 1 = off)",
     )
     p.add_argument(
+        "--ensemble",
+        nargs="+",
+        default=[],
+        metavar="CKPT",
+        help="more checkpoints (paths or shipped names) whose class probabilities and offsets "
+        "are averaged with --checkpoint's; dynamic shifting, density and settings stay "
+        "--checkpoint's; the members must predict the same classes",
+    )
+    p.add_argument(
         "--max-scans", type=ca.nonneg_int, default=0, help="only the first N scans (0 = all)"
     )
     p.add_argument("--device", type=ca.device, default="cpu", help="cpu or cuda")
@@ -77,6 +86,7 @@ def handler(args: argparse.Namespace) -> int:
     from panoptic_bench.dsnet.checkpoint import resolve_checkpoint
 
     checkpoint = resolve_checkpoint(args.checkpoint)
+    ensemble = tuple(resolve_checkpoint(name) for name in args.ensemble)
     split = _split(args)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -91,6 +101,7 @@ def handler(args: argparse.Namespace) -> int:
             fusion=False if args.no_fusion else None,
             save_features=args.save_features,
             tta_views=args.tta_views,
+            ensemble=ensemble,
             max_samples=args.max_scans,
             device=args.device,
             progress=not args.no_progress,

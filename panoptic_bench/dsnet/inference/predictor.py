@@ -13,7 +13,8 @@
 3. consensus fusion (majority vote of the semantic class inside every instance), unless disabled.
 
 ``inference.tta_views`` > 1 replaces step 1's single pass by the test-time augmentation of
-:mod:`panoptic_bench.dsnet.inference.tta` (averaged views of the scan).
+:mod:`panoptic_bench.dsnet.inference.tta` (averaged views of the scan); ``members`` (more
+backbones) make step 1 the ensemble of :mod:`panoptic_bench.dsnet.inference.ensemble`.
    "Backbone with Fusion" = mean shift 1.2 + fusion.
 
 With ``model.variant: official`` the rules of the official DS-Net code apply instead
@@ -35,8 +36,10 @@ from panoptic_bench.dsnet.checkpoint import build_grid, is_official
 from panoptic_bench.dsnet.config import DSNetConfig
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, LidarSample
 from panoptic_bench.dsnet.inference.clustering import make_clusterer
+from panoptic_bench.dsnet.inference.ensemble import ensemble_forward
 from panoptic_bench.dsnet.inference.tta import tta_forward
 from panoptic_bench.dsnet.model.forward import backbone_forward
+from panoptic_bench.dsnet.model.voxelize import CylinderGrid
 
 __all__ = ["Predictor", "ScanPrediction", "evaluate_dataset"]
 
@@ -93,6 +96,9 @@ class Predictor:
         (semantic) checkpoint, which has no trained offset head.
     keep_features : bool
         Return the point features (for the ``.npz`` exchange file).
+    members : sequence of (nn.Module, CylinderGrid), optional
+        More backbones (each with its grid) whose class probabilities and offsets are averaged
+        with ``backbone``'s (an ensemble; dynamic shifting and point features stay ``backbone``'s).
     """
 
     def __init__(
@@ -106,8 +112,10 @@ class Predictor:
         fusion: bool | None = None,
         keep_features: bool = False,
         semantic_only: bool = False,
+        members: tuple[tuple[nn.Module, CylinderGrid], ...] = (),
     ) -> None:
         self.backbone = backbone
+        self.members = tuple(members)
         self.shift = shift if clusterer is None else None
         self.cfg = cfg
         self.class_map = class_map
@@ -129,7 +137,12 @@ class Predictor:
 
         self.backbone.eval()
         views = self.cfg.inference.tta_views
-        if views > 1:
+        if self.members:
+            for model, _ in self.members:
+                model.eval()
+            members = ((self.backbone, self.grid), *self.members)
+            out = ensemble_forward(members, sample, self.device, views)
+        elif views > 1:
             out = tta_forward(self.backbone, sample, self.grid, self.device, views)
         else:
             out = backbone_forward(self.backbone, [sample], self.grid, self.device)

@@ -31,6 +31,7 @@ import numpy as np
 from panoptic_bench.dsnet.checkpoint import (
     Checkpoint,
     build_backbone,
+    build_grid,
     build_shift,
     is_official,
     load_checkpoint,
@@ -73,6 +74,7 @@ def load_predictor(
     device: str = "cpu",
     keep_features: bool = False,
     tta_views: int | None = None,
+    ensemble: tuple[str | Path, ...] = (),
 ) -> tuple[Predictor, Checkpoint]:
     """Build a :class:`Predictor` from a checkpoint.
 
@@ -85,6 +87,9 @@ def load_predictor(
         Consensus fusion on/off (default: config).
     tta_views : int, optional
         Test-time augmentation views (default: config ``inference.tta_views``).
+    ensemble : tuple of paths, optional
+        More checkpoints averaged with this one (:mod:`~panoptic_bench.dsnet.inference.ensemble`);
+        each must predict the same classes and have a trained offset head.
     """
     import dataclasses
 
@@ -105,6 +110,7 @@ def load_predictor(
         shift = build_shift(cfg, cfg.model.init_size)
         load_weights(shift, ckpt.shift, ckpt.path, "dynamic shifting")
         shift.to(device).eval()
+    members = tuple(_load_member(ckpt, path, device) for path in ensemble)
     est = None
     if clusterer is not None or bandwidth is not None:
         kind = clusterer or cfg.inference.clusterer
@@ -119,8 +125,20 @@ def load_predictor(
         fusion=fusion,
         keep_features=keep_features,
         semantic_only=is_official(cfg) and ckpt.stage == "semantic" and est is None,
+        members=members,
     )
     return with_density_policy(pred), ckpt
+
+
+def _load_member(primary: Checkpoint, path: str | Path, device: str):
+    """(backbone in eval mode, its grid) of one ensemble member, checked against ``primary``."""
+    from panoptic_bench.dsnet.inference.ensemble import check_member
+
+    member = load_checkpoint(path)
+    check_member(primary, member, path)
+    model = build_backbone(member.config, member.class_map.num_classes)
+    load_weights(model, member.backbone, member.path, "backbone")
+    return model.to(device).eval(), build_grid(member.config)
 
 
 def root_format(root: str | Path) -> DatasetFormat | None:
@@ -185,6 +203,7 @@ def run_inference(
     fusion: bool | None = None,
     save_features: bool = False,
     tta_views: int | None = None,
+    ensemble: tuple[str | Path, ...] = (),
     max_samples: int = 0,
     overwrite: bool = True,
     device: str = "cpu",
@@ -209,6 +228,7 @@ def run_inference(
         device=device,
         keep_features=save_features,
         tta_views=tta_views,
+        ensemble=tuple(ensemble),
     )
     check_fits(ckpt, data_root)
     dataset = open_split(ckpt.config, data_root, split, max_samples)
@@ -228,10 +248,14 @@ def run_inference(
             _write_fig6(out, sample, p)
     ms = 1000.0 * float(np.mean(times))
     method = method_label(pred, ckpt, clusterer)
+    if ensemble:
+        method += f" (ensemble of {1 + len(ensemble)})"
     write_json(out / "timing.json", {"scans": len(times), "ms_per_frame": ms, "device": device})
     from panoptic_bench.reports.inputs import write_run_meta
 
     meta = _run_meta(method, pred, ckpt, data_root, split, len(times), ms)
+    if ensemble:
+        meta["notes"] += f"; averaged with {', '.join(map(str, ensemble))} (ensemble)"
     if command:
         meta["command"] = command
     write_run_meta(out, meta)
