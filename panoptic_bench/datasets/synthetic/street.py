@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from panoptic_bench.datasets.synthetic.fences import build_fence
+from panoptic_bench.datasets.synthetic.fences import build_fence, build_guard_rail
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.lots import raised_lot
 from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
@@ -168,6 +168,7 @@ def _segment(
     strip_rng: np.random.Generator | None = None,
     fence_rng: np.random.Generator | None = None,
     lot_rng: np.random.Generator | None = None,
+    rail_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -191,6 +192,9 @@ def _segment(
             kerb = float(verge_rng.uniform(*prof.verge_raise))
         plan.kerb.append((side, x0, x1, kerb))  # what stands on the verge stands on its top
         b.box(x0, x1, y0, y1, 0.0, kerb, TERRAIN, refl, rough=prof.terrain_rough)
+        if prof.guard_rail and rail_rng.random() < prof.guard_rail:
+            y_rail = side * (y_curb + rail_rng.uniform(0.3, 1.0))
+            build_guard_rail(b, x0 + 0.5, x1 - 0.5, y_rail, side, kerb, rail_rng)
     else:
         plan.kerb.append((side, x0, x1, kerb))
         b.box(x0, x1, side * y_curb, side * y_front, 0.0, kerb, SIDEWALK, prof.sidewalk_reflect)
@@ -379,7 +383,8 @@ def build_street(
     strip_rng = rng.spawn(1)[0] if profile.parking_road else None
     side_rng = rng.spawn(1)[0] if profile.side_street_prob else None  # spawned after: same as above
     fence_rng = rng.spawn(1)[0] if profile.fence_lattice else None  # spawned after: same as above
-    lot_rng = rng.spawn(1)[0] if profile.lot_raise else None  # spawned last: same as above
+    lot_rng = rng.spawn(1)[0] if profile.lot_raise else None  # spawned after: same as above
+    rail_rng = rng.spawn(1)[0] if profile.guard_rail else None  # spawned last: same as above
     for side in (-1, 1):
         x = x0
         while x < x1:
@@ -387,7 +392,7 @@ def build_street(
             if x1 - (x + length) < 10.0:
                 length = x1 - x
             start = len(b.rows)
-            streams = (verge_rng, strip_rng, fence_rng, lot_rng)
+            streams = (verge_rng, strip_rng, fence_rng, lot_rng, rail_rng)
             _segment(b, gm, rng, plan, side, x, x + length, *streams)
             if side_rng is not None:
                 open_side_street(b, start, gm, plan, side_rng, side, x, x + length)
