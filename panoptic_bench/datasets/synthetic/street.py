@@ -222,17 +222,8 @@ def _segment(
         if prof.terrain_raise:
             z = float(rng.uniform(*prof.terrain_raise))
             ys = sorted((side * y_front, side * back))
-            b.box(
-                x0,
-                x1,
-                ys[0],
-                ys[1],
-                0.0,
-                z,
-                TERRAIN,
-                rng.uniform(*prof.terrain_reflect),
-                rough=prof.terrain_rough,
-            )
+            refl = rng.uniform(*prof.terrain_reflect)
+            b.box(x0, x1, ys[0], ys[1], 0.0, z, TERRAIN, refl, rough=prof.terrain_rough)
         if kind == "fence":
             fh = rng.uniform(*prof.fence_height)
             yf, refl = side * (y_front + 0.3), rng.uniform(0.2, 0.5)
