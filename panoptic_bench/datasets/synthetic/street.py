@@ -169,6 +169,7 @@ def _segment(
     fence_rng: np.random.Generator | None = None,
     lot_rng: np.random.Generator | None = None,
     rail_rng: np.random.Generator | None = None,
+    flush_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -190,8 +191,12 @@ def _segment(
         y0, y1, refl = side * y_curb, side * y_front, verge_rng.uniform(*prof.terrain_reflect)
         if prof.verge_raise:  # a raised bank (real terrain sits higher than sidewalks)
             kerb = float(verge_rng.uniform(*prof.verge_raise))
+        if flush_rng is not None and flush_rng.random() < prof.verge_flush:
+            kerb = 0.0  # flush with the road, no step: grass painted on the ground
+            gm.paint(*sorted((x0, x1)), *sorted((y0, y1)), TERRAIN, refl)
+        else:
+            b.box(x0, x1, y0, y1, 0.0, kerb, TERRAIN, refl, rough=prof.terrain_rough)
         plan.kerb.append((side, x0, x1, kerb))  # what stands on the verge stands on its top
-        b.box(x0, x1, y0, y1, 0.0, kerb, TERRAIN, refl, rough=prof.terrain_rough)
         if prof.guard_rail and rail_rng.random() < prof.guard_rail:
             y_rail = side * (y_curb + rail_rng.uniform(0.3, 1.0))
             build_guard_rail(b, x0 + 0.5, x1 - 0.5, y_rail, side, kerb, rail_rng)
@@ -375,7 +380,8 @@ def build_street(
     side_rng = rng.spawn(1)[0] if profile.side_street_prob else None  # spawned after: same as above
     fence_rng = rng.spawn(1)[0] if profile.fence_lattice else None  # spawned after: same as above
     lot_rng = rng.spawn(1)[0] if profile.lot_raise else None  # spawned after: same as above
-    rail_rng = rng.spawn(1)[0] if profile.guard_rail else None  # spawned last: same as above
+    rail_rng = rng.spawn(1)[0] if profile.guard_rail else None  # spawned after: same as above
+    flush_rng = rng.spawn(1)[0] if profile.verge_flush else None  # spawned last: same as above
     for side in (-1, 1):
         x = x0
         while x < x1:
@@ -383,7 +389,7 @@ def build_street(
             if x1 - (x + length) < 10.0:
                 length = x1 - x
             start = len(b.rows)
-            streams = (verge_rng, strip_rng, fence_rng, lot_rng, rail_rng)
+            streams = (verge_rng, strip_rng, fence_rng, lot_rng, rail_rng, flush_rng)
             _segment(b, gm, rng, plan, side, x, x + length, *streams)
             if side_rng is not None:
                 open_side_street(b, start, gm, plan, side_rng, side, x, x + length)
