@@ -98,3 +98,26 @@ def test_row_32_profiles_are_row_30_worlds_plus_flush_verges(name):
     old = load_profile(str(REPO / "configs" / f"synth_rails_{name}.yaml")).to_dict()
     assert {k for k, v in new.items() if old[k] != v} == {"name", "verge_flush"}
     assert new["verge_flush"] == 0.5
+
+
+def test_terrain_step_statistic_hand_worked():
+    """Road at -1.75 m up to y = 2.9 m; terrain beyond, flush for x < -4, 0.2 m up elsewhere."""
+    from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
+
+    xs, ys = np.meshgrid(np.arange(-11.95, 12.0, 0.1), np.arange(-2.95, 6.0, 0.15))
+    x, y = xs.ravel(), ys.ravel()
+    raw = np.where(y < 3.0, ROAD, TERRAIN).astype(np.uint32)
+    z = np.where((raw == TERRAIN) & (x > -4), -1.55, -1.75)
+    z[(raw == TERRAIN) & (x < -4)] += 0.02  # flush: within 5 cm
+    pts = np.column_stack([x, y, z, np.full_like(x, 0.3)]).astype(np.float32)
+    m, _ = scan_measures(pts, raw)
+    assert "terrain_step" in MEASURES and "terrain_flush_pct" in MEASURES
+    # terrain rows within 1 m of the road's last row (2.9): y = 3.05 ... 3.8; a third is flush
+    near = (raw == TERRAIN) & (y < 3.85) & (np.hypot(x, y) >= 3)
+    flush = near & (x < -4)
+    assert m["terrain_flush_pct"] == pytest.approx(100.0 * flush.sum() / near.sum(), abs=0.01)
+    assert m["terrain_step"] == pytest.approx(0.2, abs=1e-5)
+    # no terrain near any road: nan, not a number that looks measured
+    far = raw == ROAD
+    m2, _ = scan_measures(pts[far], raw[far])
+    assert np.isnan(m2["terrain_step"]) and np.isnan(m2["terrain_flush_pct"])

@@ -66,6 +66,7 @@ from panoptic_bench.datasets.synthetic.realism_layout import (
     pct,
     road_edges,
     road_far,
+    terrain_step,
 )
 from panoptic_bench.datasets.synthetic.realism_materials import MATERIAL_MEASURES, material_measures
 
@@ -111,6 +112,14 @@ MEASURES: dict[str, tuple[str, str]] = {
     "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
     "terrain_h": ("ground: terrain height above the road (m)", "median"),
     "other_ground_h": ("ground: other-ground height above the road (m)", "median"),
+    "terrain_step": (
+        "ground: step from the road up to terrain within 1 m of it (m) (session 30)",
+        "median",
+    ),
+    "terrain_flush_pct": (
+        "ground: % of that terrain flush with the road, |step| < 5 cm (session 30)",
+        "mean",
+    ),
     "building_y": ("layout: building median lateral distance (m)", "median"),
     "car_y": ("layout: car median lateral distance (m)", "median"),
     "road_right": ("layout: road edge to the right of the sensor (m)", "median"),
@@ -319,6 +328,7 @@ def scan_measures(
     m["verge_terrain_pct"] = beside_road_terrain(x, y, r, raw)
     m["road_right"], m["road_left"] = road_edges(x, y, raw)
     m["road_far_right_pct"], m["road_far_left_pct"] = road_far(x, y, raw)
+    m["terrain_step"], m["terrain_flush_pct"] = terrain_step(x, y, z, r, raw)
     for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
         m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
     rho = np.sqrt(r**2 + z**2)

@@ -7,10 +7,19 @@ module docstring): points are in the sensor frame, ``x`` ahead, ``y`` to the lef
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from panoptic_bench.datasets.synthetic.raw_ids import OTHER_GROUND, PARKING, ROAD, SIDEWALK, TERRAIN
 
-__all__ = ["GROUND", "beside_road_terrain", "median", "pct", "road_edges", "road_far"]
+__all__ = [
+    "GROUND",
+    "beside_road_terrain",
+    "median",
+    "pct",
+    "road_edges",
+    "road_far",
+    "terrain_step",
+]
 
 #: Raw ids of the ground classes.
 GROUND = (ROAD, PARKING, SIDEWALK, OTHER_GROUND, TERRAIN)
@@ -73,3 +82,24 @@ def road_far(x, y, raw: np.ndarray) -> tuple[float, float]:
         sel = ground & (side * y >= 6) & (side * y < 12)
         out.append(pct(raw[sel] == ROAD) if sel.any() else float("nan"))
     return out[0], out[1]
+
+
+def terrain_step(x, y, z, r, raw: np.ndarray, reach: float = 1.0, flush: float = 0.05):
+    """Step from the road up to the terrain beside it: median (m) and % flush.
+
+    Every terrain point 3-25 m away whose nearest road point (in ``x, y``) is closer than
+    ``reach`` m gives ``z - z_road``; returns the median step and the % of steps with
+    ``|step| < flush`` (``nan`` for both when fewer than 20 such points).
+    """
+    road = (raw == ROAD) & (r < 25)
+    ter = (raw == TERRAIN) & (r >= 3) & (r < 25)
+    if road.sum() < 20 or ter.sum() < 20:
+        return float("nan"), float("nan")
+    dist, idx = cKDTree(np.column_stack([x[road], y[road]])).query(
+        np.column_stack([x[ter], y[ter]])
+    )
+    near = dist < reach
+    if near.sum() < 20:
+        return float("nan"), float("nan")
+    step = z[ter][near] - z[road][idx[near]]
+    return median(step), pct(np.abs(step) < flush)
