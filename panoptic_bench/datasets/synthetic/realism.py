@@ -117,7 +117,7 @@ MEASURES: dict[str, tuple[str, str]] = {
         "median",
     ),
     "terrain_flush_pct": (
-        "ground: % of that terrain flush with the road, |step| < 5 cm (session 30)",
+        "ground: % of that terrain flush with the road (step under 5 cm either way) (session 30)",
         "mean",
     ),
     "building_y": ("layout: building median lateral distance (m)", "median"),
