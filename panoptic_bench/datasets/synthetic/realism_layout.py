@@ -84,7 +84,9 @@ def road_far(x, y, raw: np.ndarray) -> tuple[float, float]:
     return out[0], out[1]
 
 
-def terrain_step(x, y, z, r, raw: np.ndarray, reach: float = 1.0, flush: float = 0.05):
+def terrain_step(
+    x, y, z, r, raw: np.ndarray, reach: float = 1.0, flush: float = 0.05
+) -> tuple[float, float]:
     """Step from the road up to the terrain beside it: median (m) and % flush.
 
     Every terrain point 3-25 m away whose nearest road point (in ``x, y``) is closer than
