@@ -18,7 +18,7 @@ from panoptic_bench.errors import InputError
 REPO = Path(__file__).resolve().parents[1]
 
 VEHICLES_PEOPLE = (10, 252, 13, 15, 18, 20, 257, 258, 259, 11, 30, 31, 32, 253, 254, 255)
-TERRAIN, VEGETATION, SIDEWALK = 72, 70, 48
+TERRAIN, VEGETATION, SIDEWALK, ROAD = 72, 70, 48, 40
 
 
 def _labels(seq: Sequence) -> np.ndarray:
@@ -92,6 +92,34 @@ def test_material_measures_on_a_hand_made_scan():
     assert agg["rem_sidewalk_cv"] == pytest.approx(0.25, rel=1e-5)
     assert agg["rem_sidewalk_median"] == pytest.approx(0.4, rel=1e-5)
     assert MEASURES["rem_sidewalk_cv"][1] == "cv"
+
+
+def test_ground_order_row_hand_worked():
+    """Road 0.25, sidewalk 0.30, terrain 0.40 at 5-8 m: in order; swap sidewalk and terrain: not."""
+    n = 300
+    r = np.r_[np.full(n, 5.0), np.full(n, 6.0), np.full(n, 8.0)]
+    raw = np.r_[np.full(n, ROAD), np.full(n, SIDEWALK), np.full(n, TERRAIN)]
+    m = material_measures(np.repeat([0.25, 0.30, 0.40], n), raw, r)
+    assert m["rem_road_median"] == m["rem_road_cv"] == pytest.approx(0.25)
+    assert m["rem_ground_order_pct"] == 100.0
+    assert material_measures(np.repeat([0.25, 0.40, 0.30], n), raw, r)["rem_ground_order_pct"] == 0
+    # a tie is not an order
+    assert material_measures(np.repeat([0.30, 0.30, 0.40], n), raw, r)["rem_ground_order_pct"] == 0
+    # no terrain within 3-15 m: no verdict, not a failure
+    far = np.r_[r[: 2 * n], np.full(n, 20.0)]
+    assert np.isnan(
+        material_measures(np.repeat([0.25, 0.30, 0.40], n), raw, far)["rem_ground_order_pct"]
+    )
+    # over scans: the share of scans in order
+    scans = []
+    for t in (0.40, 0.40, 0.20):
+        pts = np.column_stack(
+            [r, np.zeros(3 * n), np.full(3 * n, -1.7), np.repeat([0.25, 0.30, t], n)]
+        )
+        scans.append(scan_measures(pts.astype(np.float32), raw.astype(np.uint32)))
+    agg, _ = aggregate(scans)
+    assert agg["rem_ground_order_pct"] == pytest.approx(200 / 3)
+    assert MEASURES["rem_ground_order_pct"][1] == "mean"
 
 
 @pytest.mark.parametrize(
@@ -181,3 +209,46 @@ def test_side_street_world_is_row_15_plus_row_13_layout():
     assert layout == {"side_street_prob", "ego_inner_lane", "ego_offset", "parking_road"}
     assert _moved(world, _config_profile("synth_realistic_low_crowns_low_fences")) == layout
     assert all(world[k] == row13[k] for k in layout)
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"],
+)
+def test_row_33_34_profiles_are_rails_worlds_with_narrow_ground_materials(name):
+    """Row 33 = row 30's worlds + narrow stuff materials; row 34 = row 33 + a fifth flush verges."""
+    rails = load_profile(str(REPO / "configs" / f"synth_rails_{name}.yaml")).to_dict()
+    order = load_profile(str(REPO / "configs" / f"synth_order_{name}.yaml")).to_dict()
+    flush = load_profile(str(REPO / "configs" / f"synth_order_flush_{name}.yaml")).to_dict()
+    changed = {k for k, v in order.items() if rails[k] != v} - {"name"}
+    assert {"rem_stuff_spread", "terrain_reflect"} <= changed
+    assert changed <= {
+        "rem_stuff_spread",
+        "terrain_reflect",
+        "rem_gain_vegetation",
+        "rem_dark_stuff",
+    }
+    assert tuple(order["rem_stuff_spread"]) == (0.04,)
+    assert tuple(order["terrain_reflect"]) == (0.41, 0.43)
+    assert {k for k, v in flush.items() if order[k] != v} == {"name", "verge_flush"}
+    assert flush["verge_flush"] == 0.2
+
+
+def test_narrow_materials_keep_the_ground_order_in_every_scan():
+    """The property row 33 was built for: sidewalk below terrain in each scan that has both.
+
+    Rails world (row 30): the order fails in the same streets (0 and 2: a tie and 0.36 > 0.34);
+    row 33's world: sidewalk 0.32, terrain 0.36 in both.
+    """
+    ordered = {}
+    for family in ("rails", "order"):
+        prof = load_profile(str(REPO / "configs" / f"synth_{family}_low_fences_raised_lots.yaml"))
+        ordered[family] = []
+        for seq in (0, 2):
+            sw = Sequence(seq, 1, 1, profile=prof).frame(0).sweep
+            r = np.hypot(sw.xyz[:, 0], sw.xyz[:, 1]).astype(np.float64)
+            m = material_measures(sw.remission.astype(np.float64), sw.label.astype(np.int64), r)
+            if np.isfinite(m["rem_sidewalk_median"]) and np.isfinite(m["rem_terrain_median"]):
+                ordered[family].append(m["rem_sidewalk_median"] < m["rem_terrain_median"])
+    assert ordered["order"] == [True, True]
+    assert ordered["rails"] == [False, False]
