@@ -79,6 +79,9 @@ class WorldProfile:
       dark patches (repairs, wet asphalt, tyre marks; reflectivity 0.04-0.2); ``road_reflect``,
       ``sidewalk_reflect``: base reflectivity of the road paint and of the sidewalk boxes (their
       contrast is a road-vs-sidewalk cue: realistic medians 0.26 / 0.34, real 0.28 / 0.31);
+      ``road_reflect_range``: (low, high) of a per-street ``road_reflect`` drawn from its own
+      stream (``[seed, key, 3]``; empty = ``road_reflect`` on every street; real road medians
+      spread 7 % from scan to scan, the worlds' 3 %);
     - street: ``lanes_p`` (probability of 1 and 2 lanes per side), ``lane_width``,
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
       building, green, fence or plaza frontage per segment); ``verge_prob``: probability that a
@@ -155,6 +158,7 @@ class WorldProfile:
     terrain_rough: float = 0.03
     road_dark: float = 0.0
     road_reflect: float = 0.3
+    road_reflect_range: tuple[float, ...] = ()
     sidewalk_reflect: float = 0.4
     lanes_p: tuple[float, float] = (0.45, 0.55)
     lane_width: tuple[float, float] = (3.3, 3.8)
@@ -261,6 +265,9 @@ class WorldProfile:
             "terrain_rough": 0.0 <= self.terrain_rough <= 0.5,
             "road_dark": 0.0 <= self.road_dark <= 1.0,
             "road_reflect": 0.0 <= self.road_reflect <= 1.0,
+            "road_reflect_range": len(self.road_reflect_range) in (0, 2)
+            and all(0.0 <= v <= 1.0 for v in self.road_reflect_range)
+            and list(self.road_reflect_range) == sorted(self.road_reflect_range),
             "sidewalk_reflect": 0.0 <= self.sidewalk_reflect <= 1.0,
         }
         problems += [

@@ -9,6 +9,7 @@ bicycles, moving vehicles in the lanes of both directions, cyclists at the road 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -201,6 +202,29 @@ def _traffic(
             )
 
 
+def street_profile(profile: WorldProfile, seed: int | tuple | list) -> WorldProfile:
+    """The profile one street is built with: ``profile`` with its per-street draws made.
+
+    ``road_reflect_range`` (when set) draws this street's ``road_reflect`` from its own stream,
+    ``default_rng([*seed, 3])``, so that no other draw of the street changes.
+
+    Parameters
+    ----------
+    profile : WorldProfile
+    seed : int or sequence of int
+        The scene's seed (``[seed, key]`` for a :class:`~.sequence.Sequence`).
+
+    Returns
+    -------
+    WorldProfile
+    """
+    if not profile.road_reflect_range:
+        return profile
+    lo, hi = profile.road_reflect_range
+    rng = np.random.default_rng([*np.atleast_1d(seed).tolist(), 3])
+    return dataclasses.replace(profile, road_reflect=float(rng.uniform(lo, hi)))
+
+
 def generate_scene(
     seed: int | tuple | list,
     duration: float,
@@ -227,7 +251,7 @@ def generate_scene(
     rng = np.random.default_rng(seed)
     speed = float(rng.uniform(5.0, 10.0)) if ego_speed is None else float(ego_speed)
     x_range = (-MARGIN, speed * duration + MARGIN)
-    static, ground, plan = build_street(rng, x_range, load_profile(profile))
+    static, ground, plan = build_street(rng, x_range, street_profile(load_profile(profile), seed))
     ego_lane = plan.lanes_per_side - 1
     if plan.profile.ego_inner_lane and ego_lane > 0:
         # its own stream, spawned before ego_offset's (which moves only when this key is set)
