@@ -7,12 +7,14 @@ road's own spread without touching any other draw of a street.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from panoptic_bench.datasets.synthetic import Sequence
 from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
+from panoptic_bench.datasets.synthetic.profile_files import load_profile
 from panoptic_bench.datasets.synthetic.scene import street_profile
 from panoptic_bench.errors import InputError
 
@@ -57,3 +59,15 @@ def test_per_street_draws_are_in_range_deterministic_and_differ():
 def test_bad_values(bad):
     with pytest.raises(InputError, match="road_reflect_range"):
         WorldProfile.from_dict({"road_reflect_range": bad}, base=REALISTIC)
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"],
+)
+def test_row_35_profiles_are_row_34_worlds_plus_a_road_range(name):
+    configs = Path(__file__).resolve().parents[1] / "configs"
+    new = load_profile(str(configs / f"synth_order_road_{name}.yaml")).to_dict()
+    old = load_profile(str(configs / f"synth_order_flush_{name}.yaml")).to_dict()
+    assert {k for k, v in new.items() if old[k] != v} == {"name", "road_reflect_range"}
+    assert tuple(new["road_reflect_range"]) == (0.31, 0.37)
