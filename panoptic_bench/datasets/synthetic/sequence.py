@@ -5,7 +5,9 @@ One sequence is one :class:`~panoptic_bench.datasets.synthetic.scene.Scene`, so 
 function of ``(seed, key)``: the scene from ``default_rng([seed, key])``, the sensor noise of
 frame ``i`` from ``default_rng([seed, key, i, 1])``, and with a realistic sensor
 (:mod:`~panoptic_bench.datasets.synthetic.sensor_real`) its per-sequence pose and materials
-from ``default_rng([seed, key, 2])``.
+from ``default_rng([seed, key, 2])``, and the per-street draws of the world profile
+(:func:`~panoptic_bench.datasets.synthetic.scene.street_profile`, e.g. ``road_reflect_range``)
+from ``default_rng([seed, key, 3])``.
 """
 
 from __future__ import annotations
