@@ -6,9 +6,9 @@ scan-to-scan spread, std / mean of the per-scan medians, of 3-7 %), and stuff su
 exactly 0 (1-2 % of their points). Session 24 found the realistic world's stuff 3-6 times as spread
 and 3-4 times as often 0 (per-primitive material draws), which teaches a model that remission says
 little about sidewalk against terrain; these rows measure it (``synth stats``). Session 31 adds the
-road (0.29, spread 7 %) and the order of the three ground classes: in 100 % of the real scans that
-hold all three, road is darker than sidewalk and sidewalk darker than terrain at 3-15 m (in 98 %
-strictly for road < sidewalk); row 30's worlds kept that order in about 60 % of their scans.
+road (0.29, spread 7 %) and the order of the three ground classes at 3-15 m: in 98 % of the real
+scans that hold all three, road is darker than sidewalk and sidewalk darker than terrain; row 30's
+worlds kept that order in 50 % of their scans.
 """
 
 from __future__ import annotations
