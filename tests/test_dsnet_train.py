@@ -194,6 +194,11 @@ def test_ds_stage_and_dynamic_shift_inference(world: Path, cfg: DSNetConfig, tmp
     a = np.load(tmp_path / "ds" / "sequences" / "08" / "centers" / "000000.npz")
     b = np.load(tmp_path / "tta" / "sequences" / "08" / "centers" / "000000.npz")
     assert a["offset"].shape == b["offset"].shape and not np.array_equal(a["offset"], b["offset"])
+    # --bn-stats scan: each scan's own BatchNorm statistics, another prediction, still scorable
+    assert cli([*ds_infer, "--out", str(tmp_path / "bn"), "--bn-stats", "scan"]) == 0
+    _eval_scores(world, tmp_path / "bn", tmp_path / "bn_eval")
+    c = np.load(tmp_path / "bn" / "sequences" / "08" / "centers" / "000000.npz")
+    assert a["offset"].shape == c["offset"].shape and not np.array_equal(a["offset"], c["offset"])
 
 
 def test_ddp_gloo_two_processes(world: Path, cfg: DSNetConfig, tmp_path: Path):

@@ -54,6 +54,7 @@ CASES = [
     (INFER, "--device", "banana"),
     (INFER, "--tta-views", "0"),
     (INFER, "--tta-views", "17"),
+    (INFER, "--bn-stats", "batch"),
     # box-merge simulators
     (SIM_BOXES, "--miss-rate", "2"),
     (SIM_BOXES, "--position-sigma", "nan"),

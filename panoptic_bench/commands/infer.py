@@ -53,6 +53,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default: the checkpoint config's inference.tta_views, 1 = off)",
     )
     p.add_argument(
+        "--bn-stats",
+        choices=("running", "scan"),
+        help="BatchNorm statistics at test time: the training averages (running) or each "
+        "scan's own, as in training with one scan per batch (scan); default: the checkpoint "
+        "config's inference.bn_stats",
+    )
+    p.add_argument(
         "--ensemble",
         nargs="+",
         default=[],
@@ -101,6 +108,7 @@ def handler(args: argparse.Namespace) -> int:
             fusion=False if args.no_fusion else None,
             save_features=args.save_features,
             tta_views=args.tta_views,
+            bn_stats=args.bn_stats,
             ensemble=ensemble,
             max_samples=args.max_scans,
             device=args.device,

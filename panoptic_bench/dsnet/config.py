@@ -35,6 +35,9 @@ from panoptic_bench.dsnet.config_enums import (  # noqa: F401 - re-exported
 from panoptic_bench.dsnet.config_fields import section_from_dict, section_to_dict
 from panoptic_bench.errors import InputError
 
+#: Values of ``inference.bn_stats`` (:mod:`panoptic_bench.dsnet.inference.scan_norm`).
+BN_STATS = ("running", "scan")
+
 
 @dataclass(frozen=True)
 class GridConfig:
@@ -200,6 +203,9 @@ class InferenceConfig:
     points, :mod:`panoptic_bench.dsnet.data.density`) and spreads the prediction to every point.
     ``tta_views`` > 1 averages the backbone over that many rotated / mirrored views of each scan
     (:mod:`panoptic_bench.dsnet.inference.tta`); 1 is the plain forward pass.
+    ``bn_stats``: ``"running"`` (BatchNorms use their training averages) or ``"scan"`` (each
+    BatchNorm of the backbone normalises with the statistics of the scan being predicted, as in
+    training with one scan per batch; :mod:`panoptic_bench.dsnet.inference.scan_norm`).
     """
 
     clusterer: Clusterer = Clusterer.MEANSHIFT
@@ -210,6 +216,7 @@ class InferenceConfig:
     fusion: bool = True
     match_training_density: bool = False
     tta_views: int = 1
+    bn_stats: str = "running"
 
     def validate(self) -> list[str]:
         problems = []
@@ -220,6 +227,8 @@ class InferenceConfig:
             problems.append("inference.min_points must be >= 1")
         if not 1 <= self.tta_views <= 16:
             problems.append("inference.tta_views must be in 1..16")
+        if self.bn_stats not in BN_STATS:
+            problems.append(f"inference.bn_stats must be one of {', '.join(BN_STATS)}")
         return problems
 
 

@@ -14,7 +14,9 @@
 
 ``inference.tta_views`` > 1 replaces step 1's single pass by the test-time augmentation of
 :mod:`panoptic_bench.dsnet.inference.tta` (averaged views of the scan); ``members`` (more
-backbones) make step 1 the ensemble of :mod:`panoptic_bench.dsnet.inference.ensemble`.
+backbones) make step 1 the ensemble of :mod:`panoptic_bench.dsnet.inference.ensemble`;
+``inference.bn_stats = "scan"`` runs step 1 with each scan's own BatchNorm statistics
+(:mod:`panoptic_bench.dsnet.inference.scan_norm`).
    "Backbone with Fusion" = mean shift 1.2 + fusion.
 
 With ``model.variant: official`` the rules of the official DS-Net code apply instead
@@ -37,6 +39,7 @@ from panoptic_bench.dsnet.config import DSNetConfig
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, LidarSample
 from panoptic_bench.dsnet.inference.clustering import make_clusterer
 from panoptic_bench.dsnet.inference.ensemble import ensemble_forward
+from panoptic_bench.dsnet.inference.scan_norm import scan_statistics
 from panoptic_bench.dsnet.inference.tta import tta_forward
 from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.model.voxelize import CylinderGrid
@@ -137,15 +140,17 @@ class Predictor:
 
         self.backbone.eval()
         views = self.cfg.inference.tta_views
-        if self.members:
-            for model, _ in self.members:
-                model.eval()
-            members = ((self.backbone, self.grid), *self.members)
-            out = ensemble_forward(members, sample, self.device, views)
-        elif views > 1:
-            out = tta_forward(self.backbone, sample, self.grid, self.device, views)
-        else:
-            out = backbone_forward(self.backbone, [sample], self.grid, self.device)
+        models = (self.backbone, *(model for model, _ in self.members))
+        with scan_statistics(*models, enabled=self.cfg.inference.bn_stats == "scan"):
+            if self.members:
+                for model, _ in self.members:
+                    model.eval()
+                members = ((self.backbone, self.grid), *self.members)
+                out = ensemble_forward(members, sample, self.device, views)
+            elif views > 1:
+                out = tta_forward(self.backbone, sample, self.grid, self.device, views)
+            else:
+                out = backbone_forward(self.backbone, [sample], self.grid, self.device)
         logits = out.sem_logits
         if not self.official:  # the official code's argmax runs over every class
             logits = logits.clone()

@@ -22,6 +22,7 @@ import math
 
 import torch
 from torch import nn
+from torch.nn.modules.batchnorm import _BatchNorm
 
 from panoptic_bench.dsnet.sparse import functional as F
 from panoptic_bench.dsnet.sparse import gemm
@@ -35,7 +36,8 @@ def inference_path(x: SparseTensor, *modules: nn.Module) -> bool:
     ``x``'s cache holds :data:`~panoptic_bench.dsnet.sparse.gemm.FAST_KEY`, no gradient is
     recorded (``torch.no_grad`` / ``inference_mode``), torch runs at least
     :data:`~panoptic_bench.dsnet.sparse.gemm.MIN_THREADS` threads and every module in
-    ``modules`` is in eval mode.
+    ``modules`` is in eval mode with running statistics in each of its BatchNorms (not so under
+    :func:`panoptic_bench.dsnet.inference.scan_norm.scan_statistics`).
     """
     return bool(x.cache.get(gemm.FAST_KEY, False)) and inference_enabled(*modules)
 
@@ -44,7 +46,13 @@ def inference_enabled(*modules: nn.Module) -> bool:
     """:func:`inference_path` without the tensor: no gradient, threads, eval-mode modules."""
     if torch.is_grad_enabled() or torch.get_num_threads() < gemm.MIN_THREADS:
         return False
-    return not any(m.training for m in modules)
+    if any(m.training for m in modules):
+        return False
+    return not any(
+        isinstance(sub, _BatchNorm) and sub.running_mean is None
+        for m in modules
+        for sub in m.modules()
+    )
 
 
 def norm_scale_shift(norm: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
