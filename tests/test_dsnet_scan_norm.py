@@ -7,6 +7,7 @@ import copy
 import numpy as np
 import pytest
 import torch
+from dsnet_tiny_world import tiny_model
 from torch import nn
 
 from panoptic_bench.dsnet.config import DSNetConfig
@@ -101,18 +102,8 @@ def _sample(seed: int, n: int = 3000, shift: float = 0.0) -> LidarSample:
 
 def _backbone(fast: bool, seed: int = 0) -> PanopticBackbone:
     torch.manual_seed(seed)
-    model = PanopticBackbone(
-        num_classes=5,
-        init_size=4,
-        grid=GRID,
-        point_hidden=(8,),
-        point_feature_dim=8,
-        voxel_feature_dim=4,
-        offset_hidden=4,
-        spconv1_rulebooks=fast,
-        offset_norm_first=fast,
-        fast_inference=fast,
-    )
+    flags = dict(spconv1_rulebooks=fast, offset_norm_first=fast, fast_inference=fast)
+    model = tiny_model(5, GRID, **flags)
     # give every BatchNorm running statistics unlike any scan's
     for m in model.modules():
         if isinstance(m, nn.BatchNorm1d):
