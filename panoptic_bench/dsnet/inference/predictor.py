@@ -11,13 +11,13 @@
    - otherwise a heuristic clusterer (``inference.clusterer``, default mean shift 1.2), which
      receives exactly the same regressed centres;
 3. consensus fusion (majority vote of the semantic class inside every instance), unless disabled.
+   "Backbone with Fusion" = mean shift 1.2 + fusion.
 
 ``inference.tta_views`` > 1 replaces step 1's single pass by the test-time augmentation of
 :mod:`panoptic_bench.dsnet.inference.tta` (averaged views of the scan); ``members`` (more
 backbones) make step 1 the ensemble of :mod:`panoptic_bench.dsnet.inference.ensemble`;
 ``inference.bn_stats = "scan"`` runs step 1 with each scan's own BatchNorm statistics
 (:mod:`panoptic_bench.dsnet.inference.scan_norm`).
-   "Backbone with Fusion" = mean shift 1.2 + fusion.
 
 With ``model.variant: official`` the rules of the official DS-Net code apply instead
 (:mod:`panoptic_bench.dsnet.inference.official`): argmax over all classes, no instance size
