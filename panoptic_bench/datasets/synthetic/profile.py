@@ -111,7 +111,9 @@ class WorldProfile:
       empty = painted on the ground at road level; ``guard_rail``: probability that a grass
       verge carries a guard rail (a 0.3 m steel beam on posts) along the road edge, its own stream;
       ``verge_flush``: probability that a grass verge is flush with the road (painted on the
-      ground, no step; ``verge_raise`` is still drawn, unused), its own stream;
+      ground, no step; ``verge_raise`` is still drawn, unused), its own stream; ``kerb_flush``:
+      probability that a paved sidewalk segment is flush with the road (a lowered kerb: painted
+      on the ground at road level, no step; ``kerb`` is still drawn, unused), its own stream;
       ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: probability
       that a parked car is a bus instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own stream;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
@@ -187,6 +189,7 @@ class WorldProfile:
     lot_raise: tuple[float, ...] = ()
     guard_rail: float = 0.0
     verge_flush: float = 0.0
+    kerb_flush: float = 0.0
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -224,6 +227,7 @@ class WorldProfile:
             and all(0.0 <= v <= 1.0 for v in self.lot_raise),
             "guard_rail": 0.0 <= self.guard_rail <= 1.0,
             "verge_flush": 0.0 <= self.verge_flush <= 1.0,
+            "kerb_flush": 0.0 <= self.kerb_flush <= 1.0,
             "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
             "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,

@@ -120,6 +120,14 @@ MEASURES: dict[str, tuple[str, str]] = {
         "ground: % of that terrain flush with the road (step under 5 cm either way) (session 30)",
         "mean",
     ),
+    "kerb_step": (
+        "ground: kerb step from the road up to the sidewalk within 1 m of it (m) (session 33)",
+        "median",
+    ),
+    "kerb_flush_pct": (
+        "ground: % of that sidewalk flush with the road (under 5 cm either way) (session 33)",
+        "mean",
+    ),
     "building_y": ("layout: building median lateral distance (m)", "median"),
     "car_y": ("layout: car median lateral distance (m)", "median"),
     "road_right": ("layout: road edge to the right of the sensor (m)", "median"),
@@ -329,6 +337,7 @@ def scan_measures(
     m["road_right"], m["road_left"] = road_edges(x, y, raw)
     m["road_far_right_pct"], m["road_far_left_pct"] = road_far(x, y, raw)
     m["terrain_step"], m["terrain_flush_pct"] = terrain_step(x, y, z, r, raw)
+    m["kerb_step"], m["kerb_flush_pct"] = terrain_step(x, y, z, r, raw, raw_id=SIDEWALK)
     for key, raw_id in (("road", ROAD), ("sidewalk", SIDEWALK), ("terrain", TERRAIN)):
         m[f"{key}_jitter_mm"] = _jitter(x, y, z, r, raw == raw_id)
     rho = np.sqrt(r**2 + z**2)

@@ -85,16 +85,17 @@ def road_far(x, y, raw: np.ndarray) -> tuple[float, float]:
 
 
 def terrain_step(
-    x, y, z, r, raw: np.ndarray, reach: float = 1.0, flush: float = 0.05
+    x, y, z, r, raw: np.ndarray, reach: float = 1.0, flush: float = 0.05, raw_id: int = TERRAIN
 ) -> tuple[float, float]:
-    """Step from the road up to the terrain beside it: median (m) and % flush.
+    """Step from the road up to the terrain (or class ``raw_id``) beside it: median (m), % flush.
 
-    Every terrain point 3-25 m away whose nearest road point (in ``x, y``) is closer than
+    Every point of ``raw_id`` 3-25 m away whose nearest road point (in ``x, y``) is closer than
     ``reach`` m gives ``z - z_road``; returns the median step and the % of steps with
-    ``|step| < flush`` (``nan`` for both when fewer than 20 such points).
+    ``|step| < flush`` (``nan`` for both when fewer than 20 such points). With the sidewalk's
+    raw id it is the kerb step.
     """
     road = (raw == ROAD) & (r < 25)
-    ter = (raw == TERRAIN) & (r >= 3) & (r < 25)
+    ter = (raw == raw_id) & (r >= 3) & (r < 25)
     if road.sum() < 20 or ter.sum() < 20:
         return float("nan"), float("nan")
     dist, idx = cKDTree(np.column_stack([x[road], y[road]])).query(

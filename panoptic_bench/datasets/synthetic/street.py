@@ -170,6 +170,7 @@ def _segment(
     lot_rng: np.random.Generator | None = None,
     rail_rng: np.random.Generator | None = None,
     flush_rng: np.random.Generator | None = None,
+    kerb_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -200,6 +201,9 @@ def _segment(
         if prof.guard_rail and rail_rng.random() < prof.guard_rail:
             y_rail = side * (y_curb + rail_rng.uniform(0.3, 1.0))
             build_guard_rail(b, x0 + 0.5, x1 - 0.5, y_rail, side, kerb, rail_rng)
+    elif kerb_rng is not None and kerb_rng.random() < prof.kerb_flush:
+        plan.kerb.append((side, x0, x1, 0.0))  # a lowered kerb: the sidewalk at road level
+        gm.paint(x0, x1, *sorted((side * y_curb, side * y_front)), SIDEWALK, prof.sidewalk_reflect)
     else:
         plan.kerb.append((side, x0, x1, kerb))
         b.box(x0, x1, side * y_curb, side * y_front, 0.0, kerb, SIDEWALK, prof.sidewalk_reflect)
@@ -381,7 +385,8 @@ def build_street(
     fence_rng = rng.spawn(1)[0] if profile.fence_lattice else None  # spawned after: same as above
     lot_rng = rng.spawn(1)[0] if profile.lot_raise else None  # spawned after: same as above
     rail_rng = rng.spawn(1)[0] if profile.guard_rail else None  # spawned after: same as above
-    flush_rng = rng.spawn(1)[0] if profile.verge_flush else None  # spawned last: same as above
+    flush_rng = rng.spawn(1)[0] if profile.verge_flush else None  # spawned after: same as above
+    kerb_rng = rng.spawn(1)[0] if profile.kerb_flush else None  # spawned last: same as above
     for side in (-1, 1):
         x = x0
         while x < x1:
@@ -389,7 +394,7 @@ def build_street(
             if x1 - (x + length) < 10.0:
                 length = x1 - x
             start = len(b.rows)
-            streams = (verge_rng, strip_rng, fence_rng, lot_rng, rail_rng, flush_rng)
+            streams = (verge_rng, strip_rng, fence_rng, lot_rng, rail_rng, flush_rng, kerb_rng)
             _segment(b, gm, rng, plan, side, x, x + length, *streams)
             if side_rng is not None:
                 open_side_street(b, start, gm, plan, side_rng, side, x, x + length)
