@@ -1,0 +1,126 @@
+"""Lowered kerbs (world key ``kerb_flush``, issue 13 session 33): a paved sidewalk segment
+becomes ground-level sidewalk, everything else is drawn as before; the kerb-step statistic;
+bad values and the row-38 profile files."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
+from panoptic_bench.datasets.synthetic.profile_files import load_profile
+from panoptic_bench.datasets.synthetic.sequence import Sequence
+from panoptic_bench.datasets.synthetic.street import build_street
+from panoptic_bench.errors import InputError
+
+REPO = Path(__file__).resolve().parents[1]
+SIDEWALK, ROAD = 48, 40
+# every segment a paved sidewalk (no verges), kerbs 8-14 cm, frontages buildings only
+PAVED = dataclasses.replace(
+    REALISTIC, verge_prob=0.0, kerb=(0.08, 0.14), frontage_p=(1.0, 0.0, 0.0, 0.0)
+)
+
+
+def _street(flush: float, seed: int = 3, base=PAVED):
+    return build_street(
+        np.random.default_rng(seed), (-60.0, 60.0), dataclasses.replace(base, kerb_flush=flush)
+    )
+
+
+def test_lowered_kerbs_paint_the_sidewalk_on_the_ground_and_nothing_else_moves():
+    raised, gm0, plan0 = _street(0.0)
+    flush, gm1, plan1 = _street(1.0)
+    boxes = raised.label == SIDEWALK
+    assert boxes.sum() >= 4 and not (flush.label == SIDEWALK).any()
+    # every other primitive is still there, in order, in place and size; what stood on a
+    # sidewalk (poles, signs, clutter, people) stands lower by that kerb's height (8-14 cm)
+    np.testing.assert_array_equal(flush.center[:, :2], raised.center[~boxes, :2])
+    np.testing.assert_array_equal(flush.half, raised.half[~boxes])
+    np.testing.assert_array_equal(flush.label, raised.label[~boxes])
+    dz = raised.center[~boxes, 2] - flush.center[:, 2]
+    assert np.all((np.abs(dz) < 1e-9) | ((dz >= 0.08 - 1e-9) & (dz <= 0.14 + 1e-9)))
+    assert (dz > 0.05).any()
+    # the boxes' footprints are sidewalk on the ground now, with the sidewalk's reflectivity
+    xy = raised.center[boxes, :2]
+    label, reflect = gm1.lookup(xy[:, 0], xy[:, 1])
+    assert np.all(label == SIDEWALK)
+    np.testing.assert_allclose(reflect, PAVED.sidewalk_reflect, atol=1e-6)
+    label0, _ = gm0.lookup(xy[:, 0], xy[:, 1])
+    assert not np.any(label0 == SIDEWALK)
+    # the kerb lines stay where they were, at height 0
+    assert [k[:3] for k in plan1.kerb] == [k[:3] for k in plan0.kerb]
+    assert all(k[3] == 0.0 for k in plan1.kerb) and all(k[3] >= 0.08 for k in plan0.kerb)
+    assert plan1.curb == plan0.curb
+
+
+def test_probability_zero_is_the_old_world_and_verges_are_untouched():
+    a, _, pa = _street(0.0, base=REALISTIC)
+    b, _, pb = build_street(np.random.default_rng(3), (-60.0, 60.0), REALISTIC)
+    np.testing.assert_array_equal(a.center, b.center)
+    assert pa.kerb == pb.kerb
+    kerbs = [k[3] for seed in range(4) for k in _street(0.5, seed)[2].kerb]
+    assert 0 < sum(k == 0.0 for k in kerbs) < len(kerbs)
+    # a grass verge is not a sidewalk: with every segment a raised verge nothing is lowered
+    verges = dataclasses.replace(PAVED, verge_prob=1.0, verge_raise=(0.1, 0.3))
+    v0, _, _ = _street(0.0, base=verges)
+    v1, _, _ = _street(1.0, base=verges)
+    np.testing.assert_array_equal(v0.center, v1.center)
+
+
+def test_scanned_lowered_kerb_meets_the_road_without_a_step():
+    """In a rendered sweep, sidewalk within 1 m of road sits at the road's height."""
+    steps = {}
+    for flush in (0.0, 1.0):
+        prof = dataclasses.replace(PAVED, kerb_flush=flush)
+        sw = Sequence(0, 5, 1, profile=prof).frame(0).sweep
+        r = np.hypot(sw.xyz[:, 0], sw.xyz[:, 1])
+        road, walk = (sw.label == ROAD) & (r < 25), (sw.label == SIDEWALK) & (r < 25)
+        dist, idx = cKDTree(sw.xyz[road, :2]).query(sw.xyz[walk, :2])
+        near = dist < 1.0
+        assert near.sum() > 50
+        steps[flush] = np.median(sw.xyz[walk][near, 2] - sw.xyz[road][idx[near], 2])
+    assert steps[0.0] > 0.08 and abs(steps[1.0]) < 0.05
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5])
+def test_bad_values(bad):
+    with pytest.raises(InputError, match="kerb_flush"):
+        WorldProfile.from_dict({"kerb_flush": bad}, base=REALISTIC)
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"],
+)
+def test_row_38_profiles_are_row_34_worlds_plus_lowered_kerbs(name):
+    new = load_profile(str(REPO / "configs" / f"synth_kerb_{name}.yaml")).to_dict()
+    old = load_profile(str(REPO / "configs" / f"synth_order_flush_{name}.yaml")).to_dict()
+    assert {k for k, v in new.items() if old[k] != v} == {"name", "kerb_flush"}
+    assert new["kerb_flush"] == 0.3
+
+
+def test_kerb_step_statistic_hand_worked():
+    """Road at -1.75 m up to y = 2.9 m; sidewalk beyond, flush for x < -4, 0.12 m up elsewhere."""
+    from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
+
+    xs, ys = np.meshgrid(np.arange(-11.95, 12.0, 0.1), np.arange(-2.95, 6.0, 0.15))
+    x, y = xs.ravel(), ys.ravel()
+    raw = np.where(y < 3.0, ROAD, SIDEWALK).astype(np.uint32)
+    z = np.where((raw == SIDEWALK) & (x > -4), -1.63, -1.75)
+    z[(raw == SIDEWALK) & (x < -4)] -= 0.03  # flush: within 5 cm (below the road here)
+    pts = np.column_stack([x, y, z, np.full_like(x, 0.3)]).astype(np.float32)
+    m, _ = scan_measures(pts, raw)
+    assert "kerb_step" in MEASURES and "kerb_flush_pct" in MEASURES
+    near = (raw == SIDEWALK) & (y < 3.85) & (np.hypot(x, y) >= 3)
+    flush = near & (x < -4)
+    assert m["kerb_flush_pct"] == pytest.approx(100.0 * flush.sum() / near.sum(), abs=0.01)
+    assert m["kerb_step"] == pytest.approx(0.12, abs=1e-5)
+    # no terrain in this scan: the terrain rows stay nan while the kerb rows are measured
+    assert np.isnan(m["terrain_step"])
+    road = raw == ROAD
+    m2, _ = scan_measures(pts[road], raw[road])
+    assert np.isnan(m2["kerb_step"]) and np.isnan(m2["kerb_flush_pct"])
