@@ -13,6 +13,7 @@ from panoptic_bench.baselines.panoptic import (
     consensus_fusion,
     filter_small_instances,
     nuscenes_panoptic,
+    orphans_to_stuff,
     semantickitti_label,
 )
 from panoptic_bench.baselines.regression import RegressionNoise, gt_box_centers, simulate_offsets
@@ -218,3 +219,45 @@ def test_gt_centers_give_perfect_things(real_scans, name, small, min_points):
     assert present == [1, 8]  # car and (moving) motorcyclist in the real scans
     assert total.fp[things].sum() == 0 and total.fn[things].sum() == 0
     np.testing.assert_allclose(total.compute().pq[present], 1.0)
+
+
+def test_orphans_to_stuff_hand_worked():
+    # classes 0 ignored, 1-2 things, 3-4 stuff; points 1 and 3 are orphans (thing, instance 0)
+    sem, inst = np.array([1, 1, 3, 2, 4]), np.array([7, 0, 0, 0, 0])
+    scores = np.array([[-np.inf, 9.0, 0.0, 1.0, 2.0], [-np.inf, 0.0, 9.0, 3.0, 3.0]])
+    out = orphans_to_stuff(sem, inst, scores, thing_ids=[1, 2])
+    assert out.tolist() == [1, 4, 3, 3, 4]  # tie 3 / 4 goes to the smaller id
+    assert sem.tolist() == [1, 1, 3, 2, 4]  # input untouched
+    with pytest.raises(ValueError, match="one row per orphan"):
+        orphans_to_stuff(sem, inst, scores[:1], thing_ids=[1, 2])
+
+
+def test_orphans_to_stuff_property():
+    rng = np.random.default_rng(0)
+    things = [1, 2, 3]
+    sem = rng.integers(1, 8, 500)
+    inst = np.where(rng.random(500) < 0.5, rng.integers(1, 6, 500), 0)
+    orphan = np.isin(sem, things) & (inst == 0)
+    scores = rng.normal(size=(orphan.sum(), 8))
+    scores[:, 0] = -np.inf
+    out = orphans_to_stuff(sem, inst, scores, thing_ids=things)
+    assert np.array_equal(out[~orphan], sem[~orphan])
+    assert not np.isin(out, things)[inst == 0].any()  # no thing class without an instance
+    stuff = scores.copy()
+    stuff[:, things] = -np.inf
+    assert np.array_equal(out[orphan], stuff.argmax(1))
+    # nothing to do: no orphans, no rows
+    kept = orphans_to_stuff(sem, np.ones_like(inst), np.zeros((0, 8)), thing_ids=things)
+    assert np.array_equal(kept, sem)
+
+
+def test_orphans_config_value_is_validated():
+    from panoptic_bench.dsnet.config import DSNetConfig
+    from panoptic_bench.errors import InputError
+
+    cfg = DSNetConfig.from_dict({"inference": {"orphans": "stuff"}})
+    assert cfg.inference.orphans == "stuff"
+    assert DSNetConfig.from_dict(cfg.to_dict()) == cfg
+    assert DSNetConfig().inference.orphans == "keep"
+    with pytest.raises(InputError, match="orphans"):
+        DSNetConfig.from_dict({"inference": {"orphans": "unlabeled"}})

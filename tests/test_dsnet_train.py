@@ -199,6 +199,25 @@ def test_ds_stage_and_dynamic_shift_inference(world: Path, cfg: DSNetConfig, tmp
     _eval_scores(world, tmp_path / "bn", tmp_path / "bn_eval")
     c = np.load(tmp_path / "bn" / "sequences" / "08" / "centers" / "000000.npz")
     assert a["offset"].shape == c["offset"].shape and not np.array_equal(a["offset"], c["offset"])
+    # --orphans stuff: thing points left without an instance take a stuff class, nothing else moves
+    assert cli([*ds_infer, "--out", str(tmp_path / "orph"), "--orphans", "stuff"]) == 0
+    _check_orphans(tmp_path / "ds", tmp_path / "orph")
+
+
+def _check_orphans(keep: Path, stuff: Path) -> None:
+    from panoptic_bench.datasets.semantickitti import read_labels, split_label, to_train
+
+    orphans = 0
+    for a_path in sorted((keep / "sequences" / "08" / "predictions").glob("*.label")):
+        sem_a, inst_a = split_label(read_labels(a_path))
+        sem_b, inst_b = split_label(read_labels(stuff / a_path.relative_to(keep)))
+        train_a, train_b = to_train(sem_a), to_train(sem_b)
+        is_orphan = (train_a >= 1) & (train_a <= 8) & (inst_a == 0)
+        orphans += int(is_orphan.sum())
+        assert np.array_equal(inst_a, inst_b)
+        assert np.array_equal(sem_a[~is_orphan], sem_b[~is_orphan])
+        assert np.all(train_b[is_orphan] >= 9)  # a stuff class, never unlabelled
+    assert orphans > 0  # the tiny model leaves some, so the option had work to do
 
 
 def test_ddp_gloo_two_processes(world: Path, cfg: DSNetConfig, tmp_path: Path):

@@ -55,6 +55,7 @@ CASES = [
     (INFER, "--tta-views", "0"),
     (INFER, "--tta-views", "17"),
     (INFER, "--bn-stats", "batch"),
+    (INFER, "--orphans", "unlabeled"),
     # box-merge simulators
     (SIM_BOXES, "--miss-rate", "2"),
     (SIM_BOXES, "--position-sigma", "nan"),

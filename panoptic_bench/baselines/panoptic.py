@@ -34,6 +34,7 @@ __all__ = [
     "consensus_fusion",
     "filter_small_instances",
     "nuscenes_panoptic",
+    "orphans_to_stuff",
     "semantickitti_label",
 ]
 
@@ -178,6 +179,52 @@ def assemble_panoptic(
     if fusion:
         out_sem = consensus_fusion(out_sem, inst, num_classes)
     return out_sem, inst
+
+
+def orphans_to_stuff(
+    sem: np.ndarray, inst: np.ndarray, scores: np.ndarray, thing_ids: Sequence[int]
+) -> np.ndarray:
+    """Give every orphan thing point (a things class, instance 0) its best-scoring stuff class.
+
+    Parameters
+    ----------
+    sem : array of shape (n,), integer
+        Semantic classes after the panoptic assembly.
+    inst : array of shape (n,), integer
+        Instance ids, 0 = no instance.
+    scores : array of shape (m, c), float
+        Class scores (logits or probabilities) of the orphans only, in the order of
+        ``np.flatnonzero(orphans)``; classes that must never be predicted (the ignored class)
+        hold ``-inf``.
+    thing_ids : sequence of int
+        The things classes.
+
+    Returns
+    -------
+    ndarray of shape (n,), same dtype as ``sem``
+        A copy in which each orphan carries the argmax of its scores over the classes that are
+        not things (ties to the smallest class id); every other point is unchanged.
+
+    Examples
+    --------
+    >>> sem, inst = np.array([1, 1, 9, 2]), np.array([3, 0, 0, 0])
+    >>> scores = np.array([[0.0, 5.0, 1.0, 2.0], [0.0, 1.0, 9.0, 0.5]])
+    >>> orphans_to_stuff(sem, inst, scores, thing_ids=[1, 2])
+    array([1, 3, 9, 3])
+    """
+    sem = np.asarray(sem)
+    orphans = np.flatnonzero(np.isin(sem, np.asarray(thing_ids)) & (np.asarray(inst) == 0))
+    scores = np.asarray(scores, dtype=np.float64)
+    if scores.ndim != 2 or len(scores) != len(orphans):
+        raise ValueError(
+            f"scores {scores.shape} must hold one row per orphan thing point ({len(orphans)})"
+        )
+    out = sem.copy()
+    if len(orphans):
+        stuff = scores.copy()
+        stuff[:, [t for t in thing_ids if t < stuff.shape[1]]] = -np.inf
+        out[orphans] = stuff.argmax(axis=1).astype(sem.dtype)
+    return out
 
 
 def semantickitti_label(sem: np.ndarray, inst: np.ndarray) -> np.ndarray:

@@ -60,6 +60,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "config's inference.bn_stats",
     )
     p.add_argument(
+        "--orphans",
+        choices=("keep", "stuff"),
+        help="points predicted as a thing class that end with no instance keep that class "
+        "(keep) or take their most probable stuff class (stuff); default: the checkpoint "
+        "config's inference.orphans",
+    )
+    p.add_argument(
         "--ensemble",
         nargs="+",
         default=[],
@@ -109,6 +116,7 @@ def handler(args: argparse.Namespace) -> int:
             save_features=args.save_features,
             tta_views=args.tta_views,
             bn_stats=args.bn_stats,
+            orphans=args.orphans,
             ensemble=ensemble,
             max_samples=args.max_scans,
             device=args.device,

@@ -37,6 +37,8 @@ from panoptic_bench.errors import InputError
 
 #: Values of ``inference.bn_stats`` (:mod:`panoptic_bench.dsnet.inference.scan_norm`).
 BN_STATS = ("running", "scan")
+#: Values of ``inference.orphans`` (:func:`panoptic_bench.baselines.panoptic.orphans_to_stuff`).
+ORPHANS = ("keep", "stuff")
 
 
 @dataclass(frozen=True)
@@ -206,6 +208,9 @@ class InferenceConfig:
     ``bn_stats``: ``"running"`` (BatchNorms use their training averages) or ``"scan"`` (each
     BatchNorm of the backbone normalises with the statistics of the scan being predicted, as in
     training with one scan per batch; :mod:`panoptic_bench.dsnet.inference.scan_norm`).
+    ``orphans``: fate of points predicted as a thing class that end with no instance (their
+    cluster is under ``min_points`` or is noise): ``"keep"`` their class, or take their most
+    probable ``"stuff"`` class (:func:`panoptic_bench.baselines.panoptic.orphans_to_stuff`).
     """
 
     clusterer: Clusterer = Clusterer.MEANSHIFT
@@ -217,6 +222,7 @@ class InferenceConfig:
     match_training_density: bool = False
     tta_views: int = 1
     bn_stats: str = "running"
+    orphans: str = "keep"
 
     def validate(self) -> list[str]:
         problems = []
@@ -229,6 +235,8 @@ class InferenceConfig:
             problems.append("inference.tta_views must be in 1..16")
         if self.bn_stats not in BN_STATS:
             problems.append(f"inference.bn_stats must be one of {', '.join(BN_STATS)}")
+        if self.orphans not in ORPHANS:
+            problems.append(f"inference.orphans must be one of {', '.join(ORPHANS)}")
         return problems
 
 

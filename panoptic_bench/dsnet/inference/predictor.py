@@ -17,7 +17,8 @@
 :mod:`panoptic_bench.dsnet.inference.tta` (averaged views of the scan); ``members`` (more
 backbones) make step 1 the ensemble of :mod:`panoptic_bench.dsnet.inference.ensemble`;
 ``inference.bn_stats = "scan"`` runs step 1 with each scan's own BatchNorm statistics
-(:mod:`panoptic_bench.dsnet.inference.scan_norm`).
+(:mod:`panoptic_bench.dsnet.inference.scan_norm`); ``inference.orphans = "stuff"`` gives the thing
+points left without an instance after step 3 their most probable stuff class.
 
 With ``model.variant: official`` the rules of the official DS-Net code apply instead
 (:mod:`panoptic_bench.dsnet.inference.official`): argmax over all classes, no instance size
@@ -172,6 +173,8 @@ class Predictor:
             )
         elif panoptic:
             fused, inst, diag = self._dynamic_shift(sample, sem, offsets, out.point_features)
+        if panoptic and self.cfg.inference.orphans == "stuff":
+            fused = self._orphans_to_stuff(fused, inst, logits)
         feats = out.point_features.half().cpu().numpy() if self.keep_features else None
         return ScanPrediction(
             np.asarray(fused, dtype=np.int64),
@@ -182,6 +185,16 @@ class Predictor:
             diag,
             self.class_map.thing_ids,
         )
+
+    def _orphans_to_stuff(self, sem, inst, logits):
+        """Thing points without an instance take their best stuff class (``inference.orphans``)."""
+        from panoptic_bench.baselines.panoptic import orphans_to_stuff
+
+        sem, inst = np.asarray(sem), np.asarray(inst)
+        orphans = np.flatnonzero(self._things[sem] & (inst == 0))
+        rows = logits[torch.from_numpy(orphans).to(logits.device)].float().cpu().numpy()
+        rows[:, self._ignored] = -np.inf
+        return orphans_to_stuff(sem, inst, rows, self.class_map.thing_ids)
 
     def _dynamic_shift(self, sample, sem, offsets, features):
         """DS path: shift FPS seeds, cluster them, nearest seed → instance, then fusion."""

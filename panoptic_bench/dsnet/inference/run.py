@@ -37,7 +37,7 @@ from panoptic_bench.dsnet.checkpoint import (
     load_checkpoint,
     load_weights,
 )
-from panoptic_bench.dsnet.config import BN_STATS, Clusterer, DatasetFormat, DSNetConfig
+from panoptic_bench.dsnet.config import BN_STATS, ORPHANS, Clusterer, DatasetFormat, DSNetConfig
 from panoptic_bench.dsnet.data.datasets import LidarDataset, NuScenesDataset, SemanticKittiDataset
 from panoptic_bench.dsnet.data.density import with_density_policy
 from panoptic_bench.dsnet.inference.clustering import make_clusterer
@@ -75,6 +75,7 @@ def load_predictor(
     keep_features: bool = False,
     tta_views: int | None = None,
     bn_stats: str | None = None,
+    orphans: str | None = None,
     ensemble: tuple[str | Path, ...] = (),
 ) -> tuple[Predictor, Checkpoint]:
     """Build a :class:`Predictor` from a checkpoint.
@@ -91,6 +92,8 @@ def load_predictor(
     bn_stats : {"running", "scan"}, optional
         BatchNorm statistics at test time (default: config ``inference.bn_stats``;
         :mod:`~panoptic_bench.dsnet.inference.scan_norm`).
+    orphans : {"keep", "stuff"}, optional
+        Fate of thing points left without an instance (default: config ``inference.orphans``).
     ensemble : tuple of paths, optional
         More checkpoints averaged with this one (:mod:`~panoptic_bench.dsnet.inference.ensemble`);
         each must predict the same classes and have a trained offset head.
@@ -106,12 +109,12 @@ def load_predictor(
             raise InputError(f"tta_views must be in 1..16, got {tta_views}")
         inf = dataclasses.replace(cfg.inference, tta_views=int(tta_views))
         cfg = dataclasses.replace(cfg, inference=inf)
-    if bn_stats is not None:
-        if bn_stats not in BN_STATS:
-            raise InputError(f"bn_stats must be one of {', '.join(BN_STATS)}, got {bn_stats!r}")
-        cfg = dataclasses.replace(
-            cfg, inference=dataclasses.replace(cfg.inference, bn_stats=bn_stats)
-        )
+    for key, value, allowed in (("bn_stats", bn_stats, BN_STATS), ("orphans", orphans, ORPHANS)):
+        if value is None:
+            continue
+        if value not in allowed:
+            raise InputError(f"{key} must be one of {', '.join(allowed)}, got {value!r}")
+        cfg = dataclasses.replace(cfg, inference=dataclasses.replace(cfg.inference, **{key: value}))
     backbone = build_backbone(cfg, ckpt.class_map.num_classes)
     load_weights(backbone, ckpt.backbone, ckpt.path, "backbone")
     backbone.to(device).eval()
@@ -214,6 +217,7 @@ def run_inference(
     save_features: bool = False,
     tta_views: int | None = None,
     bn_stats: str | None = None,
+    orphans: str | None = None,
     ensemble: tuple[str | Path, ...] = (),
     max_samples: int = 0,
     overwrite: bool = True,
@@ -240,6 +244,7 @@ def run_inference(
         keep_features=save_features,
         tta_views=tta_views,
         bn_stats=bn_stats,
+        orphans=orphans,
         ensemble=tuple(ensemble),
     )
     check_fits(ckpt, data_root)
