@@ -1,6 +1,6 @@
 """Grass verges flush with the road (world key ``verge_flush``, issue 13 session 30): the
-verge becomes ground-level terrain, everything else is drawn as before, bad values, and the
-row-32 profile files."""
+verge becomes ground-level terrain, everything else is drawn as before, bad values (also of
+``kerb_flush``), the row-32 profile files, and the step statistics of terrain and sidewalk."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from panoptic_bench.datasets.synthetic.street import build_street
 from panoptic_bench.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
-TERRAIN, ROAD = 72, 40
+TERRAIN, ROAD, SIDEWALK = 72, 40, 48
 # every segment a raised grass verge (0.1-0.3 m), frontages buildings only (no other terrain)
 VERGES = dataclasses.replace(
     REALISTIC, verge_prob=1.0, verge_raise=(0.1, 0.3), frontage_p=(1.0, 0.0, 0.0, 0.0)
@@ -83,10 +83,11 @@ def test_scanned_flush_verge_meets_the_road_without_a_step():
     assert steps[0.0] > 0.1 and abs(steps[1.0]) < 0.05
 
 
+@pytest.mark.parametrize("key", ["verge_flush", "kerb_flush"])
 @pytest.mark.parametrize("bad", [-0.1, 1.5])
-def test_bad_values(bad):
-    with pytest.raises(InputError, match="verge_flush"):
-        WorldProfile.from_dict({"verge_flush": bad}, base=REALISTIC)
+def test_bad_values(key, bad):
+    with pytest.raises(InputError, match=key):
+        WorldProfile.from_dict({key: bad}, base=REALISTIC)
 
 
 @pytest.mark.parametrize(
@@ -100,24 +101,31 @@ def test_row_32_profiles_are_row_30_worlds_plus_flush_verges(name):
     assert new["verge_flush"] == 0.5
 
 
-def test_terrain_step_statistic_hand_worked():
-    """Road at -1.75 m up to y = 2.9 m; terrain beyond, flush for x < -4, 0.2 m up elsewhere."""
+@pytest.mark.parametrize(
+    ("raw_id", "other", "step", "flush"),
+    [(TERRAIN, "kerb", "terrain_step", "terrain_flush_pct"),
+     (SIDEWALK, "terrain", "kerb_step", "kerb_flush_pct")],
+)  # fmt: skip
+def test_ground_step_statistic_hand_worked(raw_id, other, step, flush):
+    """Road at -1.75 m up to y = 2.9 m; terrain (or sidewalk) beyond, flush for x < -4, 0.2 m up
+    elsewhere; the other class's pair of rows stays nan."""
     from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
 
     xs, ys = np.meshgrid(np.arange(-11.95, 12.0, 0.1), np.arange(-2.95, 6.0, 0.15))
     x, y = xs.ravel(), ys.ravel()
-    raw = np.where(y < 3.0, ROAD, TERRAIN).astype(np.uint32)
-    z = np.where((raw == TERRAIN) & (x > -4), -1.55, -1.75)
-    z[(raw == TERRAIN) & (x < -4)] += 0.02  # flush: within 5 cm
+    raw = np.where(y < 3.0, ROAD, raw_id).astype(np.uint32)
+    z = np.where((raw == raw_id) & (x > -4), -1.55, -1.75)
+    z[(raw == raw_id) & (x < -4)] += 0.02  # flush: within 5 cm
     pts = np.column_stack([x, y, z, np.full_like(x, 0.3)]).astype(np.float32)
     m, _ = scan_measures(pts, raw)
-    assert "terrain_step" in MEASURES and "terrain_flush_pct" in MEASURES
-    # terrain rows within 1 m of the road's last row (2.9): y = 3.05 ... 3.8; a third is flush
-    near = (raw == TERRAIN) & (y < 3.85) & (np.hypot(x, y) >= 3)
-    flush = near & (x < -4)
-    assert m["terrain_flush_pct"] == pytest.approx(100.0 * flush.sum() / near.sum(), abs=0.01)
-    assert m["terrain_step"] == pytest.approx(0.2, abs=1e-5)
-    # no terrain near any road: nan, not a number that looks measured
+    assert step in MEASURES and flush in MEASURES
+    # rows within 1 m of the road's last row (2.9): y = 3.05 ... 3.8; a third is flush
+    near = (raw == raw_id) & (y < 3.85) & (np.hypot(x, y) >= 3)
+    is_flush = near & (x < -4)
+    assert m[flush] == pytest.approx(100.0 * is_flush.sum() / near.sum(), abs=0.01)
+    assert m[step] == pytest.approx(0.2, abs=1e-5)
+    assert np.isnan(m[f"{other}_step"]) and np.isnan(m[f"{other}_flush_pct"])
+    # nothing near any road: nan, not a number that looks measured
     far = raw == ROAD
     m2, _ = scan_measures(pts[far], raw[far])
-    assert np.isnan(m2["terrain_step"]) and np.isnan(m2["terrain_flush_pct"])
+    assert np.isnan(m2[step]) and np.isnan(m2[flush])

@@ -59,6 +59,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     TERRAIN,
     VEGETATION,
 )
+from panoptic_bench.datasets.synthetic.realism_labels import MEASURES
 from panoptic_bench.datasets.synthetic.realism_layout import (
     GROUND,
     beside_road_terrain,
@@ -68,88 +69,9 @@ from panoptic_bench.datasets.synthetic.realism_layout import (
     road_far,
     terrain_step,
 )
-from panoptic_bench.datasets.synthetic.realism_materials import MATERIAL_MEASURES, material_measures
+from panoptic_bench.datasets.synthetic.realism_materials import material_measures
 
 __all__ = ["HISTOGRAMS", "MEASURES", "aggregate", "recover_rings", "scan_measures"]
-
-#: Scalar measures: key -> (label, aggregation over scans: "mean" or "median").
-MEASURES: dict[str, tuple[str, str]] = {
-    "rem_zero_pct": ("remission: % of points exactly 0", "mean"),
-    "rem_dark_pct": ("remission: % of points below 0.1", "mean"),
-    "rem_dark_road_pct": ("remission: % of the points below 0.1 that are road", "mean"),
-    "rem_dark_car_pct": ("remission: % of the points below 0.1 that are car", "mean"),
-    "rem_std": ("remission: standard deviation", "mean"),
-    "rem_car_median": ("remission: car median", "median"),
-    "rem_car_zero_pct": ("remission: % of car points exactly 0", "mean"),
-    "rem_other_vehicle_median": (
-        "remission: truck, bus, other-vehicle, motorcycle median (3-20 m)",
-        "median",
-    ),
-    "rem_other_vehicle_zero_pct": (
-        "remission: % of truck, bus, other-vehicle, motorcycle points exactly 0",
-        "mean",
-    ),
-    "rem_people_median": ("remission: person, cyclist, bicycle median (3-20 m)", "median"),
-    "rem_pole_median": ("remission: pole median (3-20 m)", "median"),
-    "rem_sign_median": ("remission: traffic-sign median (3-20 m)", "median"),
-    "rem_road_lt5": ("remission: road median under 5 m", "median"),
-    "rem_road_20_40": ("remission: road median at 20-40 m", "median"),
-    "rem_road_gt40": ("remission: road median beyond 40 m", "median"),
-    "road_z": ("ground: road plane height under the sensor (m)", "median"),
-    "pitch_deg": ("pose: sensor pitch from the road plane (deg)", "median"),
-    "roll_deg": ("pose: sensor roll from the road plane (deg)", "median"),
-    "road_rough_cm": ("ground: road roughness, residual std (cm)", "median"),
-    "road_jitter_mm": ("ground: road jitter, 2nd z difference along the ring (mm)", "median"),
-    "sidewalk_jitter_mm": ("ground: sidewalk jitter (mm)", "median"),
-    "terrain_jitter_mm": ("ground: terrain jitter (mm)", "median"),
-    "vegetation_texture_mm": (
-        "content: vegetation texture, 2nd range difference along the ring, 3-20 m (mm)",
-        "median",
-    ),
-    "building_texture_mm": ("content: building texture, the same measure (mm)", "median"),
-    "below_185_pct": ("ground: % of points below z = -1.85 m", "mean"),
-    "verge_terrain_pct": ("layout: % terrain among the ground points beside the road", "mean"),
-    "sidewalk_h": ("ground: sidewalk height above the road (m)", "median"),
-    "terrain_h": ("ground: terrain height above the road (m)", "median"),
-    "other_ground_h": ("ground: other-ground height above the road (m)", "median"),
-    "terrain_step": (
-        "ground: step from the road up to terrain within 1 m of it (m) (session 30)",
-        "median",
-    ),
-    "terrain_flush_pct": (
-        "ground: % of that terrain flush with the road (step under 5 cm either way) (session 30)",
-        "mean",
-    ),
-    "kerb_step": (
-        "ground: kerb step from the road up to the sidewalk within 1 m of it (m) (session 33)",
-        "median",
-    ),
-    "kerb_flush_pct": (
-        "ground: % of that sidewalk flush with the road (under 5 cm either way) (session 33)",
-        "mean",
-    ),
-    "building_y": ("layout: building median lateral distance (m)", "median"),
-    "car_y": ("layout: car median lateral distance (m)", "median"),
-    "road_right": ("layout: road edge to the right of the sensor (m)", "median"),
-    "road_left": ("layout: road edge to the left of the sensor (m)", "median"),
-    "road_far_right_pct": ("layout: % road among the ground 6-12 m to the right", "mean"),
-    "road_far_left_pct": ("layout: % road among the ground 6-12 m to the left", "mean"),
-    "fence_h": ("content: fence height above the road, median of its points 3-20 m (m)", "median"),
-    "fence_through_pct": (
-        "content: % of fence points whose ring neighbour is > 1 m farther",
-        "mean",
-    ),
-    "car_range": ("layout: car points median range (m)", "median"),
-    "near5_pct": ("layout: % of points under 5 m", "mean"),
-    "far_max": ("layout: farthest point (m)", "median"),
-    "hole_min": ("ego hole: smallest sector minimum range (m)", "median"),
-    "hole_max": ("ego hole: largest sector minimum range (m)", "median"),
-    "low_ring_ratio": ("rings: points per ring, lowest 12 / others", "median"),
-    "n_rings": ("rings: rings recovered", "median"),
-    "clutter_pct": ("content: % unlabelled clutter (other-structure, other-object)", "mean"),
-    "unlabeled_pct": ("content: % of points ignored (unlabeled, outlier, clutter)", "mean"),
-    **MATERIAL_MEASURES,
-}
 
 #: Histograms summed over scans: key -> bin edges (``ring_points`` and ``hole`` have fixed length).
 HISTOGRAMS = {

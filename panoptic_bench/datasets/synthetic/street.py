@@ -376,17 +376,14 @@ def build_street(
     if profile.road_dark:
         dark_patches(gm, rng, plan, x0 - 5.0, x1 + 5.0, plan.road_half + PARKING_WIDTH)
     b = _Builder()
-    # the verges draw from their own stream (spawning does not advance ``rng``): a world with
-    # verges holds the same streets, objects and sensor draws as the same world without them
-    verge_rng = rng.spawn(1)[0] if profile.verge_prob else None
-    # so do the road-labelled parking strips (spawned after the verges: their stream is unchanged)
-    strip_rng = rng.spawn(1)[0] if profile.parking_road else None
-    side_rng = rng.spawn(1)[0] if profile.side_street_prob else None  # spawned after: same as above
-    fence_rng = rng.spawn(1)[0] if profile.fence_lattice else None  # spawned after: same as above
-    lot_rng = rng.spawn(1)[0] if profile.lot_raise else None  # spawned after: same as above
-    rail_rng = rng.spawn(1)[0] if profile.guard_rail else None  # spawned after: same as above
-    flush_rng = rng.spawn(1)[0] if profile.verge_flush else None  # spawned after: same as above
-    kerb_rng = rng.spawn(1)[0] if profile.kerb_flush else None  # spawned last: same as above
+    # each optional part draws from its own stream, spawned only when its key is on and in this
+    # order (spawning does not advance ``rng``): a world without it, or with a key added after it,
+    # holds the same streets, objects and sensor draws; a new key goes at the end of the list
+    optional = ("verge_prob", "parking_road", "side_street_prob", "fence_lattice", "lot_raise")
+    optional += ("guard_rail", "verge_flush", "kerb_flush")
+    verge_rng, strip_rng, side_rng, *rest = (
+        rng.spawn(1)[0] if getattr(profile, key) else None for key in optional
+    )
     for side in (-1, 1):
         x = x0
         while x < x1:
@@ -394,8 +391,7 @@ def build_street(
             if x1 - (x + length) < 10.0:
                 length = x1 - x
             start = len(b.rows)
-            streams = (verge_rng, strip_rng, fence_rng, lot_rng, rail_rng, flush_rng, kerb_rng)
-            _segment(b, gm, rng, plan, side, x, x + length, *streams)
+            _segment(b, gm, rng, plan, side, x, x + length, verge_rng, strip_rng, *rest)
             if side_rng is not None:
                 open_side_street(b, start, gm, plan, side_rng, side, x, x + length)
             x += length
