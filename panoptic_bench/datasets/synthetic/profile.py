@@ -114,6 +114,8 @@ class WorldProfile:
       ground, no step; ``verge_raise`` is still drawn, unused), its own stream; ``kerb_flush``:
       probability that a paved sidewalk segment is flush with the road (a lowered kerb: painted
       on the ground at road level, no step; ``kerb`` is still drawn, unused), its own stream;
+      ``verge_shrubs``: probability that a grass verge carries a row of low shrubs
+      (:mod:`~panoptic_bench.datasets.synthetic.shrubs`), its own stream;
       ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: probability
       that a parked car is a bus instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own stream;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
@@ -190,6 +192,7 @@ class WorldProfile:
     guard_rail: float = 0.0
     verge_flush: float = 0.0
     kerb_flush: float = 0.0
+    verge_shrubs: float = 0.0
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -228,6 +231,7 @@ class WorldProfile:
             "guard_rail": 0.0 <= self.guard_rail <= 1.0,
             "verge_flush": 0.0 <= self.verge_flush <= 1.0,
             "kerb_flush": 0.0 <= self.kerb_flush <= 1.0,
+            "verge_shrubs": 0.0 <= self.verge_shrubs <= 1.0,
             "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
             "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,

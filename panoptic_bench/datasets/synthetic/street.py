@@ -35,6 +35,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     VEGETATION,
 )
 from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Primitives
+from panoptic_bench.datasets.synthetic.shrubs import plant_shrubs
 from panoptic_bench.datasets.synthetic.side_streets import open_side_street
 
 __all__ = ["StreetPlan", "build_street", "curb_at", "kerb_at"]
@@ -171,6 +172,7 @@ def _segment(
     rail_rng: np.random.Generator | None = None,
     flush_rng: np.random.Generator | None = None,
     kerb_rng: np.random.Generator | None = None,
+    shrub_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -201,6 +203,8 @@ def _segment(
         if prof.guard_rail and rail_rng.random() < prof.guard_rail:
             y_rail = side * (y_curb + rail_rng.uniform(0.3, 1.0))
             build_guard_rail(b, x0 + 0.5, x1 - 0.5, y_rail, side, kerb, rail_rng)
+        if shrub_rng is not None and shrub_rng.random() < prof.verge_shrubs:
+            plant_shrubs(b, shrub_rng, x0, x1, y_curb, y_front, side, kerb)
     elif kerb_rng is not None and kerb_rng.random() < prof.kerb_flush:
         plan.kerb.append((side, x0, x1, 0.0))  # a lowered kerb: the sidewalk at road level
         gm.paint(x0, x1, *sorted((side * y_curb, side * y_front)), SIDEWALK, prof.sidewalk_reflect)
@@ -380,7 +384,7 @@ def build_street(
     # order (spawning does not advance ``rng``): a world without it, or with a key added after it,
     # holds the same streets, objects and sensor draws; a new key goes at the end of the list
     optional = ("verge_prob", "parking_road", "side_street_prob", "fence_lattice", "lot_raise")
-    optional += ("guard_rail", "verge_flush", "kerb_flush")
+    optional += ("guard_rail", "verge_flush", "kerb_flush", "verge_shrubs")
     verge_rng, strip_rng, side_rng, *rest = (
         rng.spawn(1)[0] if getattr(profile, key) else None for key in optional
     )
