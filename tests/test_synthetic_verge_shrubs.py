@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from panoptic_bench.datasets.synthetic.plants import SHRUB_HALF, SHRUB_HEIGHT
 from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
 from panoptic_bench.datasets.synthetic.sequence import Sequence
 from panoptic_bench.datasets.synthetic.shapes import ELLIPSOID
-from panoptic_bench.datasets.synthetic.shrubs import SHRUB_HALF, SHRUB_HEIGHT
 from panoptic_bench.datasets.synthetic.street import build_street
 from panoptic_bench.errors import InputError
 
@@ -95,3 +95,20 @@ def test_scanned_shrubs_add_vegetation_under_half_a_metre():
 def test_bad_values(bad):
     with pytest.raises(InputError, match="verge_shrubs"):
         WorldProfile.from_dict({"verge_shrubs": bad}, base=REALISTIC)
+
+
+def test_green_frontages_get_shrubs_in_front_on_their_raised_ground():
+    # paved sidewalks, every frontage green on ground raised 0.2-0.3 m
+    green = dataclasses.replace(
+        REALISTIC, verge_prob=0.0, frontage_p=(0.0, 1.0, 0.0, 0.0), terrain_raise=(0.2, 0.3)
+    )
+    bare, _, plan = _street(0.0, base=green)
+    planted, _, _ = _street(1.0, base=green)
+    shrub = _inserted(planted, bare)
+    assert shrub.sum() >= 20
+    for (x, y, z), rz in zip(planted.center[shrub], planted.half[shrub, 2]):
+        side = 1 if y > 0 else -1
+        curb = [c for c in plan.curb if c[0] == side and c[1] <= x <= c[2] + SHRUB_HALF[1]]
+        front = curb[0][3] + plan.sidewalk_width
+        assert front + 0.1 - 1e-9 <= abs(y) <= front + 1.4 + 1e-9
+        assert 0.2 - 1e-9 <= z - 0.5 * rz <= 0.3 + 1e-9  # on the raised green ground

@@ -85,7 +85,8 @@ def test_raised_verges_stand_higher_and_carry_what_stands_on_them():
 
 def test_trunk_height_lowers_crowns_and_changes_nothing_else():
     """trunk_height: the same draws, so only tree trunks and the crowns on them move."""
-    from panoptic_bench.datasets.synthetic.street import TRUNK, VEGETATION, build_street
+    from panoptic_bench.datasets.synthetic.raw_ids import TRUNK, VEGETATION
+    from panoptic_bench.datasets.synthetic.street import build_street
 
     def street(**kw):
         prof = dataclasses.replace(REALISTIC, **kw)

@@ -19,6 +19,7 @@ from panoptic_bench.datasets.synthetic.fences import build_fence, build_guard_ra
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.lots import raised_lot
 from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
+from panoptic_bench.datasets.synthetic.plants import bush, plant_shrubs, tree
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
 from panoptic_bench.datasets.synthetic.raw_ids import (
     BUILDING,
@@ -31,11 +32,9 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     SIDEWALK,
     SIGN,
     TERRAIN,
-    TRUNK,
     VEGETATION,
 )
-from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Primitives
-from panoptic_bench.datasets.synthetic.shrubs import plant_shrubs
+from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, Primitives
 from panoptic_bench.datasets.synthetic.side_streets import open_side_street
 
 __all__ = ["StreetPlan", "build_street", "curb_at", "kerb_at"]
@@ -113,36 +112,6 @@ class _Builder:
             np.array([r[5] for r in self.rows], np.float32),
             np.array([r[6] for r in self.rows], np.float32),
         )
-
-
-def _tree(
-    b: _Builder,
-    rng: np.random.Generator,
-    x: float,
-    y: float,
-    z: float,
-    trunk_height: tuple[float, float] = (2.0, 3.5),
-) -> None:
-    trunk_h = rng.uniform(*trunk_height)
-    r = rng.uniform(0.12, 0.25)
-    b.add(CYLINDER, (x, y, z + trunk_h / 2), (r, r, trunk_h / 2), TRUNK, rng.uniform(0.25, 0.4))
-    rc = rng.uniform(1.4, 3.2)
-    rz = rc * rng.uniform(0.8, 1.3)
-    center = (x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z + trunk_h + 0.7 * rz)
-    b.add(ELLIPSOID, center, (rc, rc * rng.uniform(0.8, 1.2), rz), VEGETATION, 0.45, rough=0.25)
-
-
-def _bush(b: _Builder, rng: np.random.Generator, x: float, y: float, z: float = 0.0) -> None:
-    rx, ry, rz = rng.uniform(0.5, 1.6), rng.uniform(0.5, 1.6), rng.uniform(0.4, 1.1)
-    b.add(
-        ELLIPSOID,
-        (x, y, z + 0.6 * rz if z else 0.6 * rz),
-        (rx, ry, rz),
-        VEGETATION,
-        0.45,
-        yaw=rng.uniform(0, np.pi),
-        rough=0.12,
-    )
 
 
 def _buildings(b: _Builder, rng, x0, x1, side, y_near, heights=(6.0, 22.0)) -> None:
@@ -237,6 +206,8 @@ def _segment(
             ys = sorted((side * y_front, side * back))
             refl = rng.uniform(*prof.terrain_reflect)
             b.box(x0, x1, ys[0], ys[1], 0.0, z, TERRAIN, refl, rough=prof.terrain_rough)
+        if shrub_rng is not None and kind == "green" and shrub_rng.random() < prof.verge_shrubs:
+            plant_shrubs(b, shrub_rng, x0, x1, y_front - 0.2, y_front + 1.7, side, z)
         if kind == "fence":
             fh = rng.uniform(*prof.fence_height)
             yf, refl = side * (y_front + 0.3), rng.uniform(0.2, 0.5)
@@ -263,9 +234,9 @@ def _segment(
         length = x1 - x0
         for _ in range(rng.poisson(length / prof.tree_spacing)):
             xt, yt = rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0)
-            _tree(b, rng, xt, yt, z, prof.trunk_height)
+            tree(b, rng, xt, yt, z, prof.trunk_height)
         for _ in range(rng.poisson(length / prof.bush_spacing)):
-            _bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
+            bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
     if prof.back_row_prob >= 1.0 or rng.random() < prof.back_row_prob:
         _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
 
@@ -341,7 +312,7 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
                 xt = x + rng.uniform(2.0, 6.0)
                 while xt < min(x + seg, x1):
                     zt = kerb_at(plan, side, xt)
-                    _tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), zt, plan.profile.trunk_height)
+                    tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), zt, plan.profile.trunk_height)
                     xt += rng.uniform(7.0, 12.0)
             x += seg
 

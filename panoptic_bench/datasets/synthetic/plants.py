@@ -1,23 +1,23 @@
-"""Low shrubs on the grass verges (world key ``verge_shrubs``).
+"""Plants of a street: trees, bushes, and the low shrubs of world key ``verge_shrubs``.
 
 Of the vegetation points of the 55 real training scans 3-20 m away, 23 % lie within 0.5 m of the
 road plane (ground cover and low planting beside the road; at least 10 % in every sequence), in
 the worlds of realism rows 34 and 38 under 7 %: their bushes stand on the raised green areas
 behind the sidewalk and their hedges' lower halves hide behind the raised terrain. The networks
 trained on them call real stuff 0.3-0.9 m tall (low vegetation, low fences) bicycle.
-:func:`plant_shrubs` fills a verge with a row of low, rough ellipsoids; the world key is the
-probability that a verge gets them, drawn with every shape from a stream of its own, so a world
-without it is unchanged.
+:func:`plant_shrubs` fills a grass verge, or the front of a green frontage, with a row of low,
+rough ellipsoids; the world key is the probability that each of them gets one, drawn with every
+shape from a stream of its own, so a world without it is unchanged.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from panoptic_bench.datasets.synthetic.raw_ids import VEGETATION
-from panoptic_bench.datasets.synthetic.shapes import ELLIPSOID
+from panoptic_bench.datasets.synthetic.raw_ids import TRUNK, VEGETATION
+from panoptic_bench.datasets.synthetic.shapes import CYLINDER, ELLIPSOID
 
-__all__ = ["SHRUB_HALF", "SHRUB_HEIGHT", "plant_shrubs"]
+__all__ = ["SHRUB_HALF", "SHRUB_HEIGHT", "bush", "plant_shrubs", "tree"]
 
 #: Range of a shrub's horizontal half axes (m).
 SHRUB_HALF = (0.3, 0.8)
@@ -63,3 +63,35 @@ def plant_shrubs(builder, rng: np.random.Generator, x0, x1, y_near, y_far, side,
         n += 1
         x += 2 * rx + rng.uniform(*_GAP)
     return n
+
+
+def tree(
+    b,
+    rng: np.random.Generator,
+    x: float,
+    y: float,
+    z: float,
+    trunk_height: tuple[float, float] = (2.0, 3.5),
+) -> None:
+    """A tree standing at ``(x, y, z)``: a trunk (cylinder) and a crown (ellipsoid) on it."""
+    trunk_h = rng.uniform(*trunk_height)
+    r = rng.uniform(0.12, 0.25)
+    b.add(CYLINDER, (x, y, z + trunk_h / 2), (r, r, trunk_h / 2), TRUNK, rng.uniform(0.25, 0.4))
+    rc = rng.uniform(1.4, 3.2)
+    rz = rc * rng.uniform(0.8, 1.3)
+    center = (x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z + trunk_h + 0.7 * rz)
+    b.add(ELLIPSOID, center, (rc, rc * rng.uniform(0.8, 1.2), rz), VEGETATION, 0.45, rough=0.25)
+
+
+def bush(b, rng: np.random.Generator, x: float, y: float, z: float = 0.0) -> None:
+    """A bush (rough ellipsoid, 0.4-1.1 m vertical half axis) standing at ``(x, y, z)``."""
+    rx, ry, rz = rng.uniform(0.5, 1.6), rng.uniform(0.5, 1.6), rng.uniform(0.4, 1.1)
+    b.add(
+        ELLIPSOID,
+        (x, y, z + 0.6 * rz if z else 0.6 * rz),
+        (rx, ry, rz),
+        VEGETATION,
+        0.45,
+        yaw=rng.uniform(0, np.pi),
+        rough=0.12,
+    )
