@@ -4,6 +4,7 @@ ellipsoids on the verges, everything else drawn as before; bad values."""
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -112,3 +113,25 @@ def test_green_frontages_get_shrubs_in_front_on_their_raised_ground():
         front = curb[0][3] + plan.sidewalk_width
         assert front + 0.1 - 1e-9 <= abs(y) <= front + 1.4 + 1e-9
         assert 0.2 - 1e-9 <= z - 0.5 * rz <= 0.3 + 1e-9  # on the raised green ground
+
+
+def test_low_vegetation_statistic_hand_worked():
+    """Flat road at -1.75 m; vegetation columns 5-15 m away: a quarter of their points under 0.5 m."""
+    from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
+
+    xs, ys = np.meshgrid(np.arange(-15.0, 15.0, 0.25), np.arange(-3.0, 3.0, 0.25))
+    road = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, -1.75)])
+    vx = np.linspace(5.0, 15.0, 40)
+    heights = np.arange(0.05, 2.0, 0.125)  # 16 heights, 4 of them under 0.5 m
+    veg = np.array([(x, 6.0, -1.75 + h) for x in vx for h in heights])
+    far = np.array([(25.0, 6.0, -1.75 + 0.1)] * 50)  # beyond 20 m: not counted
+    xyz = np.vstack([road, veg, far])
+    raw = np.r_[np.full(len(road), 40), np.full(len(veg) + len(far), VEGETATION)].astype(np.uint32)
+    pts = np.column_stack([xyz, np.full(len(xyz), 0.3)]).astype(np.float32)
+    m, _ = scan_measures(pts, raw)
+    assert "veg_low_pct" in MEASURES
+    assert m["veg_low_pct"] == pytest.approx(25.0, abs=1e-6)
+    with warnings.catch_warnings():  # no ground at all: the ego-hole rows warn, as they should
+        warnings.simplefilter("ignore", RuntimeWarning)
+        m2, _ = scan_measures(pts[len(road) :], raw[len(road) :])  # no road: no plane, nan
+    assert np.isnan(m2["veg_low_pct"])

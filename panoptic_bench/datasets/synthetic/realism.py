@@ -237,7 +237,7 @@ def scan_measures(
     resid = np.zeros(0)
     nan = float("nan")
     m.update(road_z=nan, pitch_deg=nan, roll_deg=nan, road_rough_cm=nan)
-    m.update(sidewalk_h=nan, terrain_h=nan, fence_h=nan, other_ground_h=nan)
+    m.update(sidewalk_h=nan, terrain_h=nan, fence_h=nan, other_ground_h=nan, veg_low_pct=nan)
     if coef is not None:
         a, b, c = coef
         m.update(
@@ -253,6 +253,7 @@ def scan_measures(
         m["terrain_h"] = median(resid[near & (raw == TERRAIN)])
         m["fence_h"] = median(resid[near & (raw == FENCE)])
         m["other_ground_h"] = median(resid[near & (raw == OTHER_GROUND)])
+        m["veg_low_pct"] = pct(resid[near & (raw == VEGETATION)] < 0.5)
     m["fence_through_pct"] = _see_through(r, raw == FENCE)
     m.update(material_measures(rem, raw, r))
     m["verge_terrain_pct"] = beside_road_terrain(x, y, r, raw)

@@ -76,6 +76,10 @@ MEASURES: dict[str, tuple[str, str]] = {
     "road_far_right_pct": ("layout: % road among the ground 6-12 m to the right", "mean"),
     "road_far_left_pct": ("layout: % road among the ground 6-12 m to the left", "mean"),
     "fence_h": ("content: fence height above the road, median of its points 3-20 m (m)", "median"),
+    "veg_low_pct": (
+        "content: % of the vegetation points 3-20 m away under 0.5 m above the road plane (session 33)",
+        "mean",
+    ),
     "fence_through_pct": (
         "content: % of fence points whose ring neighbour is > 1 m farther",
         "mean",
