@@ -110,12 +110,10 @@ class WorldProfile:
       boxes (paved: the sidewalk's reflectivity; grass: ``terrain_reflect``), its own stream;
       empty = painted on the ground at road level; ``guard_rail``: probability that a grass
       verge carries a guard rail (a 0.3 m steel beam on posts) along the road edge, its own stream;
-      ``verge_flush``: probability that a grass verge is flush with the road (painted on the
-      ground, no step; ``verge_raise`` is still drawn, unused), its own stream; ``kerb_flush``:
-      probability that a paved sidewalk segment is flush with the road (a lowered kerb: painted
-      on the ground at road level, no step; ``kerb`` is still drawn, unused), its own stream;
-      ``verge_shrubs``: probability that a grass verge carries a row of low shrubs
-      (:mod:`~panoptic_bench.datasets.synthetic.shrubs`), its own stream;
+      ``verge_flush`` / ``kerb_flush``: probability that a grass verge / a paved sidewalk segment
+      is painted on the ground at road level, no step (its height is still drawn), own streams;
+      ``verge_shrubs``: probability that a grass verge and the front of a green frontage each
+      carry a row of low shrubs (:mod:`~panoptic_bench.datasets.synthetic.plants`), own stream;
       ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: probability
       that a parked car is a bus instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own stream;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
