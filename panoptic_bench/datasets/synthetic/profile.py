@@ -114,6 +114,8 @@ class WorldProfile:
       is painted on the ground at road level, no step (its height is still drawn), own streams;
       ``verge_shrubs``: probability that a grass verge and the front of a green frontage each
       carry a row of low shrubs (:mod:`~panoptic_bench.datasets.synthetic.plants`), own stream;
+      ``planting_beds``: probability that a paved sidewalk segment ends at its back in a
+      planting bed (terrain under dense ground cover, :func:`~.plants.planting_bed`), own stream;
       ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: probability
       that a parked car is a bus instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own stream;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
@@ -191,6 +193,7 @@ class WorldProfile:
     verge_flush: float = 0.0
     kerb_flush: float = 0.0
     verge_shrubs: float = 0.0
+    planting_beds: float = 0.0
     clutter_spacing: float = 0.0
     tree_spacing: float = 6.0
     bush_spacing: float = 4.0
@@ -230,6 +233,7 @@ class WorldProfile:
             "verge_flush": 0.0 <= self.verge_flush <= 1.0,
             "kerb_flush": 0.0 <= self.kerb_flush <= 1.0,
             "verge_shrubs": 0.0 <= self.verge_shrubs <= 1.0,
+            "planting_beds": 0.0 <= self.planting_beds <= 1.0,
             "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
             "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,

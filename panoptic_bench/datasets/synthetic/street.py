@@ -19,7 +19,7 @@ from panoptic_bench.datasets.synthetic.fences import build_fence, build_guard_ra
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.lots import raised_lot
 from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
-from panoptic_bench.datasets.synthetic.plants import bush, plant_shrubs, tree
+from panoptic_bench.datasets.synthetic.plants import bush, plant_shrubs, planting_bed, tree
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
 from panoptic_bench.datasets.synthetic.raw_ids import (
     BUILDING,
@@ -142,6 +142,7 @@ def _segment(
     flush_rng: np.random.Generator | None = None,
     kerb_rng: np.random.Generator | None = None,
     shrub_rng: np.random.Generator | None = None,
+    bed_rng: np.random.Generator | None = None,
 ) -> None:
     prof = plan.profile
     parking = rng.random() < prof.parking_prob
@@ -174,12 +175,19 @@ def _segment(
             build_guard_rail(b, x0 + 0.5, x1 - 0.5, y_rail, side, kerb, rail_rng)
         if shrub_rng is not None and shrub_rng.random() < prof.verge_shrubs:
             plant_shrubs(b, shrub_rng, x0, x1, y_curb, y_front, side, kerb)
-    elif kerb_rng is not None and kerb_rng.random() < prof.kerb_flush:
-        plan.kerb.append((side, x0, x1, 0.0))  # a lowered kerb: the sidewalk at road level
-        gm.paint(x0, x1, *sorted((side * y_curb, side * y_front)), SIDEWALK, prof.sidewalk_reflect)
     else:
+        if kerb_rng is not None and kerb_rng.random() < prof.kerb_flush:
+            kerb = 0.0  # a lowered kerb: the sidewalk painted on the ground at road level
         plan.kerb.append((side, x0, x1, kerb))
-        b.box(x0, x1, side * y_curb, side * y_front, 0.0, kerb, SIDEWALK, prof.sidewalk_reflect)
+        y_walk = y_front
+        if bed_rng is not None and bed_rng.random() < prof.planting_beds:
+            refl = bed_rng.uniform(*prof.terrain_reflect)
+            y_walk -= planting_bed(b, gm, bed_rng, x0, x1, y_front, side, kerb, refl)
+        ys = sorted((side * y_curb, side * y_walk))
+        if kerb:
+            b.box(x0, x1, *ys, 0.0, kerb, SIDEWALK, prof.sidewalk_reflect)
+        else:
+            gm.paint(x0, x1, *ys, SIDEWALK, prof.sidewalk_reflect)
     kind = rng.choice(["building", "green", "fence", "plaza"], p=list(prof.frontage_p))
     back = y_front + rng.uniform(*prof.green_depth)
     if kind == "building":
@@ -355,7 +363,7 @@ def build_street(
     # order (spawning does not advance ``rng``): a world without it, or with a key added after it,
     # holds the same streets, objects and sensor draws; a new key goes at the end of the list
     optional = ("verge_prob", "parking_road", "side_street_prob", "fence_lattice", "lot_raise")
-    optional += ("guard_rail", "verge_flush", "kerb_flush", "verge_shrubs")
+    optional += ("guard_rail", "verge_flush", "kerb_flush", "verge_shrubs", "planting_beds")
     verge_rng, strip_rng, side_rng, *rest = (
         rng.spawn(1)[0] if getattr(profile, key) else None for key in optional
     )
