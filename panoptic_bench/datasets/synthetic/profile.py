@@ -22,12 +22,7 @@ from typing import Any
 
 from panoptic_bench.errors import InputError
 
-__all__ = [
-    "CLASSIC",
-    "PROFILES",
-    "REALISTIC",
-    "WorldProfile",
-]
+__all__ = ["CLASSIC", "PROFILES", "REALISTIC", "WorldProfile"]
 
 
 @dataclass(frozen=True)
@@ -69,9 +64,8 @@ class WorldProfile:
       correlation length (m): 0 draws every return's height independently (a point-to-point
       jitter that real ground does not have: real road is the smoothest surface of a scan, see
       the README's road-cue probes), > 0 makes it one smooth random height field per sequence
-      (a sum of random cosines, Gaussian covariance); ``ground_wave``: amplitude
-      (m) of gentle undulations (30-80 m wavelengths); ``camber``: road cross-fall towards the
-      kerbs (fraction);
+      (a sum of random cosines, Gaussian covariance); ``ground_wave``: amplitude (m) of gentle
+      undulations (30-80 m wavelengths); ``camber``: road cross-fall towards the kerbs (fraction);
     - ``kerb``: (low, high) kerb height range (m); ``terrain_raise``: (low, high) height of
       green areas above the road (m, empty = flat); ``terrain_rough``: roughness (m, mean ray
       penetration) of those raised green areas (real grass is about twice as rough, point to
@@ -86,9 +80,8 @@ class WorldProfile:
       ``shoulder``, ``sidewalk``, ``green_depth`` ranges (m); ``frontage_p`` (probability of a
       building, green, fence or plaza frontage per segment); ``verge_prob``: probability that a
       segment's sidewalk is a grass verge (terrain at kerb height) instead, drawn from its own
-      random stream so that the rest of the street is unchanged; ``verge_raise``:
-      (low, high) height (m) of a verge's top above the road instead of the kerb height (empty: the
-      kerb height); ``back_row_prob``:
+      random stream so that the rest of the street is unchanged; ``verge_raise``: (low, high)
+      height (m) of a verge's top above the road (empty: the kerb height); ``back_row_prob``:
       probability of the second row of buildings behind a non-building frontage;
       ``parking_prob`` per segment; ``parking_road``: probability that a parking strip is part of
       the carriageway (labelled and textured as road, as kerb-side parking on KITTI's residential
