@@ -23,6 +23,7 @@ CENTERS = ["centers", "simulate", "--dataset", "D", "--output", "{out}"]
 EVAL_K = ["eval", "semantickitti", "--dataset", "D", "--predictions", "P", "--output", "{out}"]
 EVAL_4D = ["eval", "semantickitti-4d", "--dataset", "D", "--predictions", "P", "--output", "{out}"]
 COMPARE = ["eval", "compare", "A", "B", "--output", "{out}"]
+CONFUSIONS = ["eval", "confusions", "A", "--output", "{out}"]
 EVAL_N = ["eval", "nuscenes", "--dataroot", "D", "--version", "v1.0-mini", "--result-path", "R",
           "--eval-set", "mini_val", "--output", "{out}"]  # fmt: skip
 LABELS = ["nuscenes", "make-labels", "--dataroot", "D", "--version", "v1.0-mini", "--out-dir",
@@ -80,6 +81,8 @@ CASES = [
     (COMPARE, "--level", "1"),
     (COMPARE, "--level", "nan"),
     (COMPARE, "--seed", "-1"),
+    (CONFUSIONS, "--top", "0"),
+    (CONFUSIONS, "--top", "x"),
     (EVAL_4D, "--workers", "-2"),
     (EVAL_4D, "--by-range", "nan,1"),
     (EVAL_N, "--workers", "0"),

@@ -15,6 +15,7 @@ EVAL_TARGETS: list[str] = [
     "eval_semantickitti_4d",
     "eval_nuscenes",
     "eval_compare",
+    "eval_confusions",
 ]
 
 

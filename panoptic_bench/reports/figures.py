@@ -14,6 +14,7 @@ Fig.   function                                    inputs
 6      :func:`plot_shift_iterations`               points, seeds per iteration, bandwidths
 7      :func:`plot_bandwidth_vs_iteration`         class -> learned bandwidth per iteration
 ours   :func:`plot_pq_vs_range`                    method -> (range bins, PQ per bin)
+ours   :func:`plot_confusion`                      true x predicted point counts
 9-11   :func:`panoptic_bench.reports.bev.plot_bev_panoptic`
 =====  ==========================================  ===========================================
 """
@@ -339,4 +340,38 @@ def plot_pq_vs_range(
         ax.set_ylim(0, 100)
         ax.set_title(f"{metric} by distance (ours)")
         ax.legend(loc="best")
+    return Path(path)
+
+
+def plot_confusion(
+    conf: np.ndarray, class_names: Sequence[str], path: str | Path, *, title: str = ""
+) -> Path:
+    """Where each true class's points go: the confusion matrix normalised by row (ours).
+
+    Parameters
+    ----------
+    conf : array of shape (C, C), int
+        ``[t, p]`` = points of true class ``t`` predicted as ``p``; all-zero rows (ignored true
+        classes) are left out.
+    class_names : sequence of str, length C
+    path : str or Path
+        Output PNG.
+    title : str
+        Axes title.
+    """
+    conf = np.asarray(conf, dtype=np.float64)
+    if conf.shape != (len(class_names), len(class_names)):
+        raise ValueError(f"conf has shape {conf.shape}, expected {len(class_names)} square")
+    rows = np.flatnonzero(conf.sum(axis=1) > 0)
+    share = 100 * conf[rows] / conf[rows].sum(axis=1, keepdims=True)
+    n = len(class_names)
+    with figure(path, size=(0.32 * n + 2.2, 0.3 * len(rows) + 1.6)) as (fig, axes):
+        ax = axes[0, 0]
+        im = ax.imshow(share, cmap="Blues", vmin=0, vmax=100, aspect="auto")
+        ax.set_xticks(range(n), class_names, rotation=90, fontsize=7)
+        ax.set_yticks(range(len(rows)), [class_names[r] for r in rows], fontsize=7)
+        ax.set_xlabel("predicted as")
+        ax.set_ylabel("true class")
+        ax.set_title(title or "confusion (% of each true class)")
+        fig.colorbar(im, ax=ax, label="% of the true class's points")
     return Path(path)
