@@ -1,6 +1,7 @@
 """Planting beds (world key ``planting_beds``, issue 13 session 34): the back of a paved sidewalk
 segment becomes a strip of terrain at the sidewalk's height under dense low shrubs, everything
-else is drawn as before; flush kerbs get painted beds; the row-39 profile files; bad values."""
+else is drawn as before; flush kerbs get painted beds; the row-39 and row-40 profile files; bad
+values."""
 
 from __future__ import annotations
 
@@ -147,3 +148,14 @@ def test_row_39_profiles_are_row_38_worlds_plus_beds_and_shrubs(name):
     old = load_profile(str(REPO / "configs" / f"synth_kerb_{name}.yaml")).to_dict()
     assert {k for k, v in new.items() if old[k] != v} == {"name", "planting_beds", "verge_shrubs"}
     assert new["planting_beds"] == 0.6 and new["verge_shrubs"] == 1.0
+
+
+@pytest.mark.parametrize(
+    "name", ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"]
+)
+def test_row_40_profiles_are_row_39_worlds_with_the_real_ground_shares(name):
+    new = load_profile(str(REPO / "configs" / f"synth_ground_{name}.yaml")).to_dict()
+    old = load_profile(str(REPO / "configs" / f"synth_bed_{name}.yaml")).to_dict()
+    changed = {k for k, v in new.items() if old[k] != v}
+    assert changed == {"name", "verge_prob", "sidewalk", "parked_fill"}
+    assert (new["verge_prob"], tuple(new["sidewalk"]), new["parked_fill"]) == (0.2, (3.0, 6.0), 0.5)
