@@ -59,11 +59,12 @@ def confusion_rows(
         class); with ``other`` also ``points_b``, ``of_true_b`` and ``change`` (points B - A).
     """
     conf = np.asarray(conf, np.int64)
+    b = None if other is None else np.asarray(other, np.int64)
     C = len(class_names)
-    if conf.shape != (C, C) or (other is not None and np.shape(other) != (C, C)):
+    if conf.shape != (C, C) or (b is not None and b.shape != (C, C)):
         raise ValueError(f"confusion matrices must have shape ({C}, {C})")
     off = ~np.eye(C, dtype=bool)
-    key = conf if other is None else np.abs(np.asarray(other, np.int64) - conf)
+    key = conf if b is None else np.abs(b - conf)
     order = np.argsort(-np.where(off, key, -1), axis=None, kind="stable")[: max(0, top)]
     rows = []
     for flat in order:
@@ -77,8 +78,7 @@ def confusion_rows(
             "of_true": _share(conf[t, p], conf[t].sum()),
             "of_predicted": _share(conf[t, p], conf[:, p].sum()),
         }
-        if other is not None:
-            b = np.asarray(other, np.int64)
+        if b is not None:
             row |= {
                 "points_b": int(b[t, p]),
                 "of_true_b": _share(b[t, p], b[t].sum()),
@@ -98,7 +98,7 @@ def _pct(x: float) -> str:
 
 def confusion_table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows of :func:`confusion_rows` as an aligned text table (shares in %)."""
-    from panoptic_bench.evaluation.output import _text_table
+    from panoptic_bench.evaluation.output import text_table
 
     pair = bool(rows) and "change" in rows[0]
     head = ["true class", "predicted as", "points", "% of true", "% of predicted"]
@@ -113,7 +113,7 @@ def confusion_table(rows: Sequence[dict[str, Any]]) -> str:
         else:
             body.append([r["true"], r["predicted"], str(r["points"]), _pct(r["of_true"]),
                          _pct(r["of_predicted"])])  # fmt: skip
-    return _text_table(head, body)
+    return text_table(head, body)
 
 
 def csv_text(conf: np.ndarray, class_names: Sequence[str]) -> str:

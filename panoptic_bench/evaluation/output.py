@@ -33,6 +33,7 @@ __all__ = [
     "interval_table",
     "percent_table",
     "scores_dict",
+    "text_table",
     "write_scores",
 ]
 
@@ -95,7 +96,7 @@ def codalab_scores(summary: Mapping[str, float]) -> dict[str, float]:
     return {key: float(summary[ours]) for key, ours in CODALAB_KEYS.items()}
 
 
-def _text_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+def text_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """Fixed-width text table: first column left-aligned, the others right-aligned."""
     widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
     lines = []
@@ -121,7 +122,7 @@ def percent_table(scores: Mapping[str, Any]) -> str:
     classes = scores["classes"]
     cols = list(next(iter(classes.values()))) if classes else ["PQ", "SQ", "RQ", "IoU"]
     rows = [[name, *(_pct(m[c]) for c in cols)] for name, m in classes.items()]
-    out = _text_table(["class", *cols], rows) + "\n"
+    out = text_table(["class", *cols], rows) + "\n"
     bins = scores.get("by_range") or []
     metrics = list(scores["all"])
     head = ["", *(["points"] if bins else []), *metrics]
@@ -130,7 +131,7 @@ def percent_table(scores: Mapping[str, Any]) -> str:
         name = f"{b['range'][0]:g}-{b['range'][1]:g} m"
         points = "" if b.get("points") is None else str(b["points"])
         rows.append([name, points, *(_pct(b["all"][m]) for m in metrics)])
-    return out + _text_table(head, rows)
+    return out + text_table(head, rows)
 
 
 def interval_table(boot: Mapping[str, Any]) -> str:
@@ -142,7 +143,7 @@ def interval_table(boot: Mapping[str, Any]) -> str:
     level = f"{100 * boot['level']:g} %"
     unit = f"{boot['n_units']} {boot.get('unit', 'scan')}s"
     head = f"{level} intervals, {boot['n_boot']} bootstrap replicates of {unit} "
-    return head + f"({boot['caveat']}):\n" + _text_table(["", "value", "low", "high"], rows)
+    return head + f"({boot['caveat']}):\n" + text_table(["", "value", "low", "high"], rows)
 
 
 def comparison_table(cmp: Mapping[str, Any], names: Sequence[str] = ("A", "B")) -> str:
@@ -165,7 +166,7 @@ def comparison_table(cmp: Mapping[str, Any], names: Sequence[str] = ("A", "B")) 
         f"A = {a}\nB = {b}\npaired bootstrap, {cmp['n_boot']} replicates of the same "
         f"{cmp['n_units']} {cmp.get('unit', 'scan')}s ({cmp['caveat']}):\n"
     )
-    return intro + _text_table(head, rows)
+    return intro + text_table(head, rows)
 
 
 def write_scores(

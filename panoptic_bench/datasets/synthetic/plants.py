@@ -24,6 +24,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import TERRAIN, TRUNK, VEGETATION
 from panoptic_bench.datasets.synthetic.shapes import CYLINDER, ELLIPSOID
 
 __all__ = [
+    "BED_ROUGH",
     "BED_WIDTH",
     "SHRUB_HALF",
     "SHRUB_HEIGHT",
@@ -42,6 +43,9 @@ _GAP = (0.2, 2.0)
 #: Range of a planting bed's width across the street (m) and of the gaps of its ground cover.
 BED_WIDTH = (0.6, 1.0)
 _BED_GAP = (0.0, 0.5)
+#: Roughness (m, mean ray penetration) of a bed's soil: raked earth, smoother than the profile's
+#: ``terrain_rough`` grass (0.06 m in rows 39-40's worlds, which were generated with this value).
+BED_ROUGH = 0.03
 
 
 def plant_shrubs(
@@ -97,7 +101,7 @@ def planting_bed(builder, ground, rng: np.random.Generator, x0, x1, y_back, side
     w = float(rng.uniform(*BED_WIDTH))
     ys = sorted((side * (y_back - w), side * y_back))
     if z > 0.0:
-        builder.box(x0, x1, *ys, 0.0, z, TERRAIN, refl, rough=0.03)
+        builder.box(x0, x1, *ys, 0.0, z, TERRAIN, refl, rough=BED_ROUGH)
     else:
         ground.paint(x0, x1, *ys, TERRAIN, refl)
     plant_shrubs(builder, rng, x0, x1, y_back - w - 0.15, y_back + 0.15, side, z, gap=_BED_GAP)
