@@ -47,6 +47,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-fusion", action="store_true", help="skip consensus fusion")
     p.add_argument("--save-features", action="store_true", help="store features in the .npz")
     p.add_argument(
+        "--save-probs",
+        action="store_true",
+        help="also write every point's class probabilities (sequences/XX/probs/NNNNNN.npy, "
+        "float16): the teacher targets of a training run with loss.distill",
+    )
+    p.add_argument(
         "--tta-views",
         type=ca.int_range(1, 16),
         help="test-time augmentation: average the backbone over K rotated / mirrored views "
@@ -114,6 +120,7 @@ def handler(args: argparse.Namespace) -> int:
             bandwidth=args.bandwidth,
             fusion=False if args.no_fusion else None,
             save_features=args.save_features,
+            save_probs=args.save_probs,
             tta_views=args.tta_views,
             bn_stats=args.bn_stats,
             orphans=args.orphans,

@@ -163,17 +163,32 @@ class OptimConfig:
 
 @dataclass(frozen=True)
 class LossConfig:
-    """Loss weights: semantic (CE + Lovász), offset L1, dynamic shifting per iteration."""
+    """Loss weights: semantic (CE + Lovász), offset L1, dynamic shifting per iteration.
+
+    Distillation (off by default): with ``distill`` = a > 0 the CE target of every labelled
+    training point is ``(1 - a) * its label + a * the teacher's class probabilities``, read from
+    ``distill_probs`` (the root of an ``infer --save-probs`` run on the training root,
+    :mod:`panoptic_bench.dsnet.data.soft_labels`); Lovász-softmax keeps the labels.
+    """
 
     ce: float = 1.0
     lovasz: float = 1.0
     offset: float = 1.0
     class_weight_power: float = 0.5
     ds_iteration_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    distill: float = 0.0
+    distill_probs: str = ""
 
     def validate(self) -> list[str]:
         names = ("ce", "lovasz", "offset")
-        return [f"loss.{n} must be >= 0" for n in names if getattr(self, n) < 0]
+        problems = [f"loss.{n} must be >= 0" for n in names if getattr(self, n) < 0]
+        if not 0.0 <= self.distill <= 1.0:
+            problems.append(f"loss.distill must be in [0, 1], got {self.distill}")
+        elif self.distill > 0 and not self.distill_probs:
+            problems.append(
+                "loss.distill > 0 needs loss.distill_probs (an infer --save-probs root)"
+            )
+        return problems
 
 
 @dataclass(frozen=True)
@@ -323,6 +338,8 @@ class DSNetConfig:
             problems.append(
                 "loss.ds_iteration_weights needs one weight per dynamic_shift iteration"
             )
+        if cfg.loss.distill > 0 and cfg.augment.mix_prob > 0:
+            problems.append("loss.distill and augment.mix_prob cannot be combined")
         if problems:
             raise InputError("invalid config: " + "; ".join(problems), source)
         return cfg

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from panoptic_bench.dsnet.data.soft_labels import one_hot
 from panoptic_bench.errors import InputError
 
 __all__ = [
@@ -219,11 +220,14 @@ class InstanceBank:
         Returns
         -------
         LidarSample
-            A new sample (the input is not modified); key of ``sample``.
+            A new sample (the input is not modified); key of ``sample``. Teacher probabilities
+            (``sample.soft``) travel with the kept points; pasted points get probability 1 on
+            their class.
         """
         from panoptic_bench.dsnet.data.datasets import LidarSample
 
         xyz, rem, sem, inst = sample.xyz, sample.remission, sample.sem, sample.inst
+        soft = sample.soft
         next_id = int(inst.max(initial=0)) + 1
         for _ in range(count):
             obj = self.draw(rng)
@@ -246,6 +250,9 @@ class InstanceBank:
                     rem = np.concatenate([rem[keep], obj.remission])
                     sem = np.concatenate([sem[keep], np.full(n, obj.sem, dtype=sem.dtype)])
                     inst = np.concatenate([inst[keep], np.full(n, next_id, dtype=inst.dtype)])
+                    if soft is not None:  # a pasted point's class is certain
+                        sure = one_hot(np.full(n, obj.sem), soft.shape[1])
+                        soft = np.concatenate([soft[keep], sure])
                     next_id += 1
                     break
         return LidarSample(
@@ -254,6 +261,7 @@ class InstanceBank:
             sem=sem,
             inst=inst,
             key=sample.key,
+            soft=soft,
         )
 
 

@@ -28,6 +28,7 @@ from panoptic_bench.dsnet.data.augment import (
 )
 from panoptic_bench.dsnet.data.density import thin
 from panoptic_bench.dsnet.data.mix import mix_pair
+from panoptic_bench.dsnet.data.soft_labels import read_soft_labels, soft_label_path
 from panoptic_bench.errors import InputError
 
 if TYPE_CHECKING:
@@ -100,6 +101,8 @@ class LidarSample:
         Instance ids, unique within the scan over all classes; 0 for stuff / no instance.
     key : tuple of str
         Identifier used to write the prediction (``(sequence, frame)`` or ``(token,)``).
+    soft : ndarray of shape (n, C), float16, optional
+        A teacher's class probabilities (distillation, :mod:`.soft_labels`); None otherwise.
     """
 
     xyz: np.ndarray
@@ -107,6 +110,7 @@ class LidarSample:
     sem: np.ndarray
     inst: np.ndarray
     key: tuple[str, ...]
+    soft: np.ndarray | None = None
 
 
 class LidarDataset(Protocol):
@@ -304,6 +308,9 @@ class TrainingSet:
     (``augment.paste_prob`` > 0, from ``bank``) draws from ``(seed, e, i, 2)``.
     bank : InstanceBank, optional
         Instances to paste; required when ``augment.paste_prob`` > 0.
+    soft_root : path, optional
+        Root of teacher probabilities (:mod:`.soft_labels`): every sample then carries them in
+        ``soft`` (not with scene mixing).
     """
 
     def __init__(
@@ -312,9 +319,13 @@ class TrainingSet:
         augment: AugmentConfig | None,
         seed: int = 0,
         bank: InstanceBank | None = None,
+        soft_root: str | Path | None = None,
     ):
         if augment is not None and augment.paste_prob > 0 and bank is None:
             raise ValueError("augment.paste_prob > 0 needs an InstanceBank")
+        if soft_root is not None and augment is not None and augment.mix_prob > 0:
+            raise ValueError("teacher probabilities cannot be carried through scene mixing")
+        self.soft_root = None if soft_root is None else Path(soft_root)
         self.dataset = dataset
         self.augment = augment
         self.seed = seed
@@ -357,6 +368,10 @@ class TrainingSet:
 
     def __getitem__(self, index: int) -> LidarSample:
         sample = self.dataset.load(index)
+        if self.soft_root is not None:
+            path = soft_label_path(self.soft_root, sample.key)
+            num_classes = self.dataset.class_map.num_classes
+            sample.soft = read_soft_labels(path, len(sample.xyz), num_classes)
         if self.augment is not None:
             aug = self.augment
             if aug.mix_prob > 0:

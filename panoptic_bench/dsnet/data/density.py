@@ -53,6 +53,7 @@ def thin(sample, max_points: int, rng: np.random.Generator):
             sample.sem[keep],
             sample.inst[keep],
             sample.key,
+            None if sample.soft is None else sample.soft[keep],
         ),
         keep,
     )
@@ -99,7 +100,7 @@ def predict_at_density(predict, sample, max_points: int, panoptic: bool = True):
     -------
     ScanPrediction
         One entry per point of ``sample``; dropped points take the semantic class, instance id,
-        offset and features of their nearest kept point.
+        offset, features and class probabilities of their nearest kept point.
     """
     import dataclasses
 
@@ -111,7 +112,7 @@ def predict_at_density(predict, sample, max_points: int, panoptic: bool = True):
     near = nearest_kept(sample.xyz, keep)
     spread = {
         name: getattr(pred, name)[near]
-        for name in ("sem", "inst", "sem_raw", "offsets", "features")
+        for name in ("sem", "inst", "sem_raw", "offsets", "features", "probs")
         if getattr(pred, name) is not None
     }
     return dataclasses.replace(pred, **spread)

@@ -69,6 +69,10 @@ class ScanPrediction:
         into the predicted thing points, trajectories, weights, implied bandwidths).
     thing_ids : tuple of int
         Thing classes (the thing points are those with ``sem_raw`` in it).
+    probs : ndarray of shape (n, C), float16 or None
+        Class probabilities of the backbone (softmax over the non-ignored classes; the ignored
+        ones get 0; kept only when asked for: the distillation targets of
+        :mod:`panoptic_bench.dsnet.data.soft_labels`).
     """
 
     sem: np.ndarray
@@ -78,6 +82,7 @@ class ScanPrediction:
     features: np.ndarray | None = None
     shift: dict[str, np.ndarray] | None = field(default=None)
     thing_ids: tuple[int, ...] = ()
+    probs: np.ndarray | None = None
 
 
 class Predictor:
@@ -100,6 +105,8 @@ class Predictor:
         (semantic) checkpoint, which has no trained offset head.
     keep_features : bool
         Return the point features (for the ``.npz`` exchange file).
+    keep_probs : bool
+        Return the class probabilities (``ScanPrediction.probs``).
     members : sequence of (nn.Module, CylinderGrid), optional
         More backbones (each with its grid) whose class probabilities and offsets are averaged
         with ``backbone``'s (an ensemble; dynamic shifting and point features stay ``backbone``'s).
@@ -117,6 +124,7 @@ class Predictor:
         keep_features: bool = False,
         semantic_only: bool = False,
         members: tuple[tuple[nn.Module, CylinderGrid], ...] = (),
+        keep_probs: bool = False,
     ) -> None:
         self.backbone = backbone
         self.members = tuple(members)
@@ -128,6 +136,7 @@ class Predictor:
         self.clusterer = clusterer or make_clusterer(inf.clusterer, inf.bandwidth)
         self.fusion = inf.fusion if fusion is None else fusion
         self.keep_features = keep_features
+        self.keep_probs = bool(keep_probs)
         self.semantic_only = bool(semantic_only)
         self.grid = build_grid(cfg)
         self._things = class_map.thing_lut()
@@ -176,6 +185,11 @@ class Predictor:
         if panoptic and self.cfg.inference.orphans == "stuff":
             fused = self._orphans_to_stuff(fused, inst, logits)
         feats = out.point_features.half().cpu().numpy() if self.keep_features else None
+        probs = None
+        if self.keep_probs:
+            masked = out.sem_logits.float().clone()
+            masked[:, self._ignored] = -torch.inf
+            probs = torch.softmax(masked, dim=1).half().cpu().numpy()
         return ScanPrediction(
             np.asarray(fused, dtype=np.int64),
             np.asarray(inst, dtype=np.int64),
@@ -184,6 +198,7 @@ class Predictor:
             feats,
             diag,
             self.class_map.thing_ids,
+            probs,
         )
 
     def _orphans_to_stuff(self, sem, inst, logits):

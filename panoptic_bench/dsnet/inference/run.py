@@ -8,6 +8,9 @@ Written under ``PRED_ROOT``:
 - the regressed-centre exchange files of :mod:`panoptic_bench.baselines.centers`
   (``sequences/XX/centers/NNNNNN.npz`` or ``centers/<token>.npz``: ``sem`` uint8 N, ``offset``
   float32 N×3, optional ``features``), so any clusterer can be fed exactly these centres;
+- with ``save_probs``: the class probabilities of every point (``sequences/XX/probs/NNNNNN.npy``
+  or ``probs/<token>.npy``, float16 N×C), the distillation targets of
+  :mod:`panoptic_bench.dsnet.data.soft_labels`;
 - for DS-Net checkpoints (unless ``clusterer`` is given): ``sequences/XX/dynamic_shift/
   NNNNNN.npz`` (nuScenes: ``dynamic_shift/<token>.npz``) with ``seed_index`` (M,), per-seed
   ``weights`` (I, M, l), implied ``bandwidth`` (I, M) = sum_j W_j delta_j, ``trajectory``
@@ -40,6 +43,7 @@ from panoptic_bench.dsnet.checkpoint import (
 from panoptic_bench.dsnet.config import BN_STATS, ORPHANS, Clusterer, DatasetFormat, DSNetConfig
 from panoptic_bench.dsnet.data.datasets import LidarDataset, NuScenesDataset, SemanticKittiDataset
 from panoptic_bench.dsnet.data.density import with_density_policy
+from panoptic_bench.dsnet.data.soft_labels import soft_label_path, write_soft_labels
 from panoptic_bench.dsnet.inference.clustering import make_clusterer
 from panoptic_bench.dsnet.inference.predictor import Predictor, ScanPrediction
 from panoptic_bench.errors import InputError
@@ -77,6 +81,7 @@ def load_predictor(
     bn_stats: str | None = None,
     orphans: str | None = None,
     ensemble: tuple[str | Path, ...] = (),
+    keep_probs: bool = False,
 ) -> tuple[Predictor, Checkpoint]:
     """Build a :class:`Predictor` from a checkpoint.
 
@@ -97,6 +102,8 @@ def load_predictor(
     ensemble : tuple of paths, optional
         More checkpoints averaged with this one (:mod:`~panoptic_bench.dsnet.inference.ensemble`);
         each must predict the same classes and have a trained offset head.
+    keep_probs : bool
+        Keep every point's class probabilities (``ScanPrediction.probs``).
     """
     import dataclasses
 
@@ -139,6 +146,7 @@ def load_predictor(
         keep_features=keep_features,
         semantic_only=is_official(cfg) and ckpt.stage == "semantic" and est is None,
         members=members,
+        keep_probs=keep_probs,
     )
     return with_density_policy(pred), ckpt
 
@@ -215,6 +223,7 @@ def run_inference(
     bandwidth: float | None = None,
     fusion: bool | None = None,
     save_features: bool = False,
+    save_probs: bool = False,
     tta_views: int | None = None,
     bn_stats: str | None = None,
     orphans: str | None = None,
@@ -246,6 +255,7 @@ def run_inference(
         bn_stats=bn_stats,
         orphans=orphans,
         ensemble=tuple(ensemble),
+        keep_probs=save_probs,
     )
     check_fits(ckpt, data_root)
     dataset = open_split(ckpt.config, data_root, split, max_samples)
@@ -261,6 +271,8 @@ def run_inference(
         p = pred.predict(sample)
         times.append(time.perf_counter() - t0)
         _write_scan(out, sample.key, p, split, nus)
+        if save_probs:
+            write_soft_labels(soft_label_path(out, sample.key), p.probs)
         if p.shift is not None and not (out / "shift_iterations.npz").exists():
             _write_fig6(out, sample, p)
     ms = 1000.0 * float(np.mean(times))

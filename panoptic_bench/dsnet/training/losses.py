@@ -123,15 +123,47 @@ def semantic_loss(
     ignore_index: int = 0,
     ce_weight: float = 1.0,
     lovasz_weight: float = 1.0,
+    soft: torch.Tensor | None = None,
+    distill: float = 0.0,
 ) -> torch.Tensor:
-    """``ce_weight * weighted CE + lovasz_weight * Lovász-softmax`` on (n, C) logits."""
+    """``ce_weight * weighted CE + lovasz_weight * Lovász-softmax`` on (n, C) logits.
+
+    With ``soft`` (n, C) teacher probabilities and ``distill`` = a > 0 the CE target of every
+    labelled point is ``(1 - a) * one_hot(label) + a * soft`` (:func:`soft_cross_entropy`);
+    Lovász-softmax keeps the labels.
+    """
     valid = labels != ignore_index
     if not bool(valid.any()):
         return logits.sum() * 0.0
     w = None if weight is None else weight.to(device=logits.device, dtype=logits.dtype)
-    ce = F.cross_entropy(logits, labels, weight=w, ignore_index=ignore_index)
+    if soft is not None and distill > 0:
+        hard = F.one_hot(labels[valid], logits.shape[1]).to(logits.dtype)
+        target = (1.0 - distill) * hard + distill * soft[valid].to(logits.dtype)
+        ce = soft_cross_entropy(logits[valid], target, w)
+    else:
+        ce = F.cross_entropy(logits, labels, weight=w, ignore_index=ignore_index)
     lov = lovasz_softmax(F.softmax(logits, dim=1), labels, ignore_index=ignore_index)
     return ce_weight * ce + lovasz_weight * lov
+
+
+def soft_cross_entropy(
+    logits: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Class-weighted cross-entropy against probability rows.
+
+    ``sum_i sum_c w_c t_ic (-log softmax(z_i)_c) / sum_i sum_c w_c t_ic``: with one-hot rows it
+    is exactly :func:`torch.nn.functional.cross_entropy`'s weighted mean.
+
+    Parameters
+    ----------
+    logits, target : Tensor of shape (n, C)
+        Rows of ``target`` are probabilities.
+    weight : Tensor of shape (C,), optional
+    """
+    w = torch.ones(logits.shape[1], dtype=logits.dtype, device=logits.device)
+    w = w if weight is None else weight
+    wt = target * w[None, :]
+    return -(wt * F.log_softmax(logits, dim=1)).sum() / wt.sum().clamp_min(1e-12)
 
 
 def instance_centers(

@@ -66,7 +66,9 @@ def stage_loss(
 ) -> StageLoss:
     """Backbone loss of the ``semantic`` or ``offset`` stage for a batch.
 
-    ``semantic``: ``ce * weighted CE + lovasz * Lovász-softmax``; ``offset`` adds
+    ``semantic``: ``ce * weighted CE + lovasz * Lovász-softmax`` (the CE target mixed with the
+    samples' teacher probabilities when ``loss.distill`` > 0 and every sample carries them);
+    ``offset`` adds
     ``offset * L1`` on ground-truth thing points towards the tight-box centre of their instance.
     """
     from panoptic_bench.dsnet.training import losses
@@ -75,8 +77,18 @@ def stage_loss(
     sem = _cat(samples, "sem", device)
     w = cfg.loss
     ignore = class_map.ignore_ids[0] if class_map.ignore_ids else -100
+    soft = None
+    if w.distill > 0 and all(s.soft is not None for s in samples):
+        soft = _cat(samples, "soft", device)
     total = losses.semantic_loss(
-        out.sem_logits, sem, class_weights, ignore, ce_weight=w.ce, lovasz_weight=w.lovasz
+        out.sem_logits,
+        sem,
+        class_weights,
+        ignore,
+        ce_weight=w.ce,
+        lovasz_weight=w.lovasz,
+        soft=soft,
+        distill=w.distill,
     )
     parts = {"semantic": float(total.detach())}
     if stage == "offset":

@@ -161,6 +161,7 @@ def _make_context(
             cfg.augment,
             seed=cfg.optim.seed,
             bank=open_bank(cfg.augment, train_ds, progress and info.is_main),
+            soft_root=_distill_root(cfg),
         ),
         val_set=val_ds,
         class_map=cmap,
@@ -169,6 +170,20 @@ def _make_context(
         grid=build_grid(cfg),
         progress=progress and info.is_main,
     )
+
+
+def _distill_root(cfg: DSNetConfig) -> Path | None:
+    """The teacher-probability root of ``loss.distill`` (None when distillation is off)."""
+    if cfg.loss.distill <= 0:
+        return None
+    root = Path(cfg.loss.distill_probs)
+    if not (root / "sequences").is_dir() and not (root / "probs").is_dir():
+        raise InputError(
+            "loss.distill_probs: no sequences/ or probs/ here; write it with "
+            "`panoptic-bench infer --save-probs` on the training root",
+            root,
+        )
+    return root
 
 
 def _write_run_files(ctx: TrainContext, data_root: str | Path, notes: str) -> None:
