@@ -194,3 +194,27 @@ def test_save_probs_then_train_a_student(tmp_path, capsys):
 def _shape(world: Path, frame: str) -> tuple[int, int]:
     n = np.fromfile(world / "sequences" / "00" / "velodyne" / f"{frame}.bin", np.float32).size // 4
     return n, 20
+
+
+def test_probabilities_are_spread_like_the_classes_at_training_density():
+    from panoptic_bench.dsnet.data.density import predict_at_density
+    from panoptic_bench.dsnet.inference.predictor import ScanPrediction
+
+    s = _sample()
+
+    def predict(small, panoptic=True):
+        n = len(small.xyz)
+        probs = _probs(n, 4, seed=n)
+        sem = probs.astype(np.float32).argmax(1)
+        return ScanPrediction(
+            sem,
+            np.zeros(n, np.int64),
+            sem.astype(np.uint8),
+            np.zeros((n, 3), np.float32),
+            probs=probs,
+        )
+
+    p = predict_at_density(predict, s, 300)
+    assert p.probs.shape == (len(s.xyz), 4)
+    assert np.array_equal(p.probs.astype(np.float32).argmax(1), p.sem)
+    assert len(np.unique(p.probs, axis=0)) == 300  # each point took one of the kept points' rows

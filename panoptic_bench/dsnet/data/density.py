@@ -113,7 +113,7 @@ def predict_at_density(predict, sample, max_points: int, panoptic: bool = True):
     spread = {
         name: getattr(pred, name)[near]
         for name in ("sem", "inst", "sem_raw", "offsets", "features", "probs")
-        if getattr(pred, name) is not None
+        if getattr(pred, name, None) is not None
     }
     return dataclasses.replace(pred, **spread)
 
