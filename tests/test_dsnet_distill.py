@@ -189,6 +189,12 @@ def test_save_probs_then_train_a_student(tmp_path, capsys):
     assert cli([*train, "--config", str(good), "--out", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err
     assert "000001.npy" in err and "--save-probs" in err and "Traceback" not in err
+    nowhere = tmp_path / "no-teacher"
+    save_config(cfg.replace(loss={"distill_probs": str(nowhere)}), good)
+    assert cli([*train, "--config", str(good), "--out", str(tmp_path / "bad2")]) == 2
+    err = capsys.readouterr().err
+    assert "loss.distill_probs: no sequences/" in err and str(nowhere) in err
+    assert not (tmp_path / "bad2" / "checkpoints").exists()
 
 
 def _shape(world: Path, frame: str) -> tuple[int, int]:
