@@ -16,12 +16,8 @@ from panoptic_bench.dsnet.data.bank import (
     placement_ok,
     rotate_z,
 )
-from panoptic_bench.dsnet.data.datasets import (
-    ClassMap,
-    LidarSample,
-    SemanticKittiDataset,
-    TrainingSet,
-)
+from panoptic_bench.dsnet.data.datasets import ClassMap, LidarSample, SemanticKittiDataset
+from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.errors import InputError
 
 GROUND_Z = -1.7

@@ -15,7 +15,7 @@ from panoptic_bench.dsnet.data.augment import (
     class_remission_gain,
     tilt_points,
 )
-from panoptic_bench.dsnet.data.datasets import ClassMap, LidarSample, TrainingSet
+from panoptic_bench.dsnet.data.datasets import ClassMap, LidarSample
 from panoptic_bench.dsnet.data.density import (
     DensityMatchedPredictor,
     density_seed,
@@ -24,6 +24,7 @@ from panoptic_bench.dsnet.data.density import (
     thin_indices,
     with_density_policy,
 )
+from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.errors import InputError
 
 

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from panoptic_bench.dsnet.config import AugmentConfig, DSNetConfig
-from panoptic_bench.dsnet.data.datasets import LidarSample, TrainingSet
+from panoptic_bench.dsnet.data.datasets import LidarSample
 from panoptic_bench.dsnet.data.mix import (
     azimuth_in_sector,
     mix_pair,
     paste_instances,
     swap_sector,
 )
+from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.errors import InputError
 
 

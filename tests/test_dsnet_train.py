@@ -256,7 +256,8 @@ def test_shard_order_covers_every_sample_once_per_epoch():
 
 
 def test_training_set_augmentation_is_reproducible(world: Path, cfg: DSNetConfig):
-    from panoptic_bench.dsnet.data.datasets import TrainingSet, open_dataset
+    from panoptic_bench.dsnet.data.datasets import open_dataset
+    from panoptic_bench.dsnet.data.training_set import TrainingSet
 
     ds = open_dataset(world, cfg.data, "train")
     a = TrainingSet(ds, cfg.augment.__class__(max_points=500), seed=1)

@@ -41,7 +41,8 @@ from panoptic_bench.dsnet.checkpoint import (
 )
 from panoptic_bench.dsnet.config import DSNetConfig, save_config
 from panoptic_bench.dsnet.data.bank import open_bank
-from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, TrainingSet, open_dataset
+from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, open_dataset
+from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
 from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
