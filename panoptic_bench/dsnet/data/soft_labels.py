@@ -5,7 +5,7 @@ probabilities its checkpoint (or ensemble, with its test-time views) gave every 
 ``sequences/<seq>/probs/<frame>.npy`` under the prediction root of a SemanticKITTI-format root,
 ``probs/<token>.npy`` for nuScenes, float16 of shape (n, C), each row summing to 1 with 0 on the
 ignored classes. A training run with ``loss.distill`` > 0 reads them from ``loss.distill_probs``
-(:class:`~panoptic_bench.dsnet.data.datasets.TrainingSet`) and carries them with the points
+(:class:`~panoptic_bench.dsnet.data.training_set.TrainingSet`) and carries them with the points
 through thinning and pasting (a pasted instance's points get its class with probability 1).
 
 Example
