@@ -224,3 +224,24 @@ def test_probabilities_are_spread_like_the_classes_at_training_density():
     assert p.probs.shape == (len(s.xyz), 4)
     assert np.array_equal(p.probs.astype(np.float32).argmax(1), p.sem)
     assert len(np.unique(p.probs, axis=0)) == 300  # each point took one of the kept points' rows
+
+
+def test_a_distilling_step_refuses_a_sample_without_teacher_probabilities():
+    """No silent fall-back to the plain loss when a sample lost its probabilities."""
+    from panoptic_bench.dsnet.data.datasets import ClassMap
+    from panoptic_bench.dsnet.model.network import BackboneOutput
+    from panoptic_bench.dsnet.training.steps import stage_loss
+
+    cfg = DSNetConfig.from_dict(
+        {**TINY, "loss": {**TINY["loss"], "distill": 0.5, "distill_probs": "x"}}
+    )
+    cmap = ClassMap("toy", ("unlabeled", "a", "b", "c"), (3,), (1, 2), (0,))
+    s = _sample()
+    z = torch.randn(len(s.xyz), 4)
+    out = BackboneOutput(z, torch.zeros(len(s.xyz), 3), torch.zeros(len(s.xyz), 2), z[:1])
+    weights = torch.ones(4)
+    got = stage_loss("semantic", out, [s], cfg, cmap, weights).total
+    assert torch.isfinite(got)
+    bare = LidarSample(s.xyz, s.remission, s.sem, s.inst, s.key)
+    with pytest.raises(ValueError, match="carries no teacher probabilities"):
+        stage_loss("semantic", out, [bare], cfg, cmap, weights)

@@ -67,7 +67,7 @@ def stage_loss(
     """Backbone loss of the ``semantic`` or ``offset`` stage for a batch.
 
     ``semantic``: ``ce * weighted CE + lovasz * Lovász-softmax`` (the CE target mixed with the
-    samples' teacher probabilities when ``loss.distill`` > 0 and every sample carries them);
+    samples' teacher probabilities when ``loss.distill`` > 0; every sample must carry them);
     ``offset`` adds
     ``offset * L1`` on ground-truth thing points towards the tight-box centre of their instance.
     """
@@ -78,7 +78,11 @@ def stage_loss(
     w = cfg.loss
     ignore = class_map.ignore_ids[0] if class_map.ignore_ids else -100
     soft = None
-    if w.distill > 0 and all(s.soft is not None for s in samples):
+    if w.distill > 0:
+        if any(s.soft is None for s in samples):
+            raise ValueError(
+                "loss.distill > 0 but a training sample carries no teacher probabilities"
+            )
         soft = _cat(samples, "soft", device)
     total = losses.semantic_loss(
         out.sem_logits,
