@@ -56,7 +56,9 @@ class WorldProfile:
       primitives that are neither vehicles nor people; ``rem_gain_vegetation``: factor of
       vegetation; ``terrain_reflect``: range of a terrain patch's reflectivity; ``veg_rough``:
       factor on the ray penetration depth of vegetation (crowns 0.25 m, bushes and hedges
-      0.12 m mean; same draws, so 1 keeps every world bit for bit).
+      0.12 m mean; same draws, so 1 keeps every world bit for bit); ``rem_grazing``: (terrain,
+      sidewalk + parking) cosine of the grazing cutoff ``1 / (1 + (c / cos)^8)`` (empty = 0.06
+      for every surface; real grass keeps its remission much farther than asphalt).
 
     Ground and world:
 
@@ -145,6 +147,7 @@ class WorldProfile:
     rem_stuff_spread: tuple[float, ...] = ()
     rem_gain_vegetation: float = 1.0
     veg_rough: float = 1.0
+    rem_grazing: tuple[float, ...] = ()
     terrain_reflect: tuple[float, float] = (0.3, 0.5)
     ground_rough: float = 0.0
     ground_rough_corr: float = 0.0
@@ -247,6 +250,8 @@ class WorldProfile:
             and all(0.0 <= v <= 2.0 for v in self.rem_stuff_spread),
             "rem_gain_vegetation": 0.0 < self.rem_gain_vegetation <= 10.0,
             "veg_rough": 0.0 <= self.veg_rough <= 5.0,
+            "rem_grazing": len(self.rem_grazing) in (0, 2)
+            and all(0.0 <= v <= 0.3 for v in self.rem_grazing),
             "terrain_reflect": 0.0 <= self.terrain_reflect[0] and self.terrain_reflect[1] <= 1.0,
             "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
@@ -346,7 +351,7 @@ _SENSOR_KEYS = (
     "max_range", "range_noise", "physical_remission", "rem_incidence_exp", "rem_range_m",
     "rem_spread", "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below",
     "rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign", "rem_stuff_spread",
-    "rem_gain_vegetation", "veg_rough",
+    "rem_gain_vegetation", "veg_rough", "rem_grazing",
     "ground_rough", "ground_rough_corr", "ground_wave", "camber",
 )  # fmt: skip
 

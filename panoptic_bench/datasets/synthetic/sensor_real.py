@@ -21,9 +21,12 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     CAR,
     MOVING_CAR,
     OTHER_VEHICLES,
+    PARKING,
     PEOPLE,
     POLE,
+    SIDEWALK,
     SIGN,
+    TERRAIN,
     VEGETATION,
 )
 from panoptic_bench.datasets.synthetic.raycast import GROUND, cast, ray_directions
@@ -152,6 +155,20 @@ def rough_field(rng: np.random.Generator, std: float, corr: float) -> np.ndarray
     return np.column_stack([k, phase, amp])
 
 
+#: Cosine of the grazing cutoff of every surface unless ``rem_grazing`` says otherwise.
+GRAZING_COS = 0.06
+
+
+def _grazing(profile: WorldProfile, label: np.ndarray) -> float | np.ndarray:
+    """Grazing cutoff cosine per return: (n,) float64, or the scalar 0.06 without ``rem_grazing``."""
+    if not profile.rem_grazing:
+        return GRAZING_COS
+    c = np.full(label.shape, GRAZING_COS)
+    c[label == TERRAIN] = profile.rem_grazing[0]
+    c[np.isin(label, (SIDEWALK, PARKING))] = profile.rem_grazing[1]
+    return c
+
+
 def _ego_hidden(dirs: np.ndarray, box: tuple[float, ...]) -> np.ndarray:
     """Rays (sensor frame) that hit the top of the ego body ``(xb, xf, yr, yl, z_top)``."""
     xb, xf, yr, yl, zt = box
@@ -244,7 +261,7 @@ def sweep_realistic(
         + np.clip(rng.normal(0.0, noise, idx.size), -2.5 * noise, 2.5 * noise)
     )
     fall_r = 1.0 / (1.0 + (t / profile.rem_range_m) ** 4)
-    fall_i = cos_inc**profile.rem_incidence_exp / (1.0 + (0.06 / cos_inc) ** 8)
+    fall_i = cos_inc**profile.rem_incidence_exp / (1.0 + (_grazing(profile, label) / cos_inc) ** 8)
     rem = reflect * gain * fall_r * fall_i * rng.lognormal(0.0, profile.rem_spread, idx.size)
     rem = np.floor(np.clip(rem, 0.0, 0.99) * 100.0) / 100.0
     rem[rem < profile.rem_zero_below] = 0.0
