@@ -57,8 +57,7 @@ class WorldProfile:
       vegetation; ``terrain_reflect``: range of a terrain patch's reflectivity; ``veg_rough``:
       factor on the ray penetration depth of vegetation (crowns 0.25 m, bushes and hedges
       0.12 m mean; same draws, so 1 keeps every world bit for bit); ``rem_grazing``: (terrain,
-      sidewalk + parking) cosine of the grazing cutoff ``1 / (1 + (c / cos)^8)`` (empty = 0.06
-      for every surface; real grass keeps its remission much farther than asphalt).
+      sidewalk + parking) cosine c of the cutoff ``1 / (1 + (c / cos)^8)`` (empty: 0.06 for all).
 
     Ground and world:
 
@@ -219,8 +218,7 @@ class WorldProfile:
             "parking_road": 0.0 <= self.parking_road <= 1.0,
             "ego_inner_lane": 0.0 <= self.ego_inner_lane <= 1.0,
             "side_street_prob": 0.0 <= self.side_street_prob <= 1.0,
-            "side_street_width": 3.0 <= self.side_street_width[0]
-            and self.side_street_width[1] <= 20.0,
+            "side_street_width": 3.0 <= (w := self.side_street_width)[0] and w[1] <= 20.0,
             "fence_height": 0.2 <= self.fence_height[0] and self.fence_height[1] <= 4.0,
             "fence_lattice": 0.0 <= self.fence_lattice <= 1.0,
             "lot_raise": len(self.lot_raise) in (0, 2)
@@ -250,8 +248,7 @@ class WorldProfile:
             and all(0.0 <= v <= 2.0 for v in self.rem_stuff_spread),
             "rem_gain_vegetation": 0.0 < self.rem_gain_vegetation <= 10.0,
             "veg_rough": 0.0 <= self.veg_rough <= 5.0,
-            "rem_grazing": len(self.rem_grazing) in (0, 2)
-            and all(0.0 <= v <= 0.3 for v in self.rem_grazing),
+            "rem_grazing": len(g := self.rem_grazing) in (0, 2) and all(0 <= v <= 0.3 for v in g),
             "terrain_reflect": 0.0 <= self.terrain_reflect[0] and self.terrain_reflect[1] <= 1.0,
             "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
@@ -351,8 +348,8 @@ _SENSOR_KEYS = (
     "max_range", "range_noise", "physical_remission", "rem_incidence_exp", "rem_range_m",
     "rem_spread", "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below",
     "rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign", "rem_stuff_spread",
-    "rem_gain_vegetation", "veg_rough", "rem_grazing",
-    "ground_rough", "ground_rough_corr", "ground_wave", "camber",
+    "rem_gain_vegetation", "veg_rough", "rem_grazing", "ground_rough", "ground_rough_corr",
+    "ground_wave", "camber",
 )  # fmt: skip
 
 REALISTIC = WorldProfile(
