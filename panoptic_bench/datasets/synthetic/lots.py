@@ -23,14 +23,15 @@ def raised_lot(
     x1: float,
     ys: list[float],
     label: int,
-) -> None:
+) -> float:
     """Add one lot ``[x0, x1) x [ys[0], ys[1])`` as a box from the ground up to a height drawn
     from ``prof.lot_raise`` (paved: the sidewalk's reflectivity; grass, ``label`` TERRAIN: a draw
     from ``prof.terrain_reflect`` and the terrain's roughness). ``builder``: the street builder
-    (its ``box`` method); ``rng``: the lots' own stream."""
+    (its ``box`` method); ``rng``: the lots' own stream. Returns the lot's height (m)."""
     z = float(rng.uniform(*prof.lot_raise))
     if label == TERRAIN:
         refl, rough = float(rng.uniform(*prof.terrain_reflect)), prof.terrain_rough
     else:
         refl, rough = prof.sidewalk_reflect, 0.0
     builder.box(x0, x1, ys[0], ys[1], 0.0, z, label, refl, rough=rough)
+    return z

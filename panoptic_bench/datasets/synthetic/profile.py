@@ -112,6 +112,8 @@ class WorldProfile:
       planting bed (terrain under dense ground cover, :func:`~.plants.planting_bed`), own stream;
       ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: probability
       that a parked car is a bus instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own stream;
+      ``yard_cars``: probability that a green, fence or plaza frontage holds a row of parked cars
+      behind its sidewalk (:mod:`~panoptic_bench.datasets.synthetic.yards`), own stream;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
       (other-structure, other-object); ``tree_spacing`` / ``bush_spacing`` in green areas;
       ``trunk_height``: (low, high) bare trunk below a tree's crown (m; the crown sits on it, so a
@@ -172,6 +174,7 @@ class WorldProfile:
     parking_road: float = 0.0
     parked_fill: float = 1.0
     parked_bus: float = 0.0
+    yard_cars: float = 0.0
     ped_spacing: float = 30.0
     bike_spacing: float = 60.0
     cyclist_spacing: float = 70.0
@@ -208,47 +211,23 @@ class WorldProfile:
             "low_ring_keep": all(0.0 <= k <= 1.0 for k in self.low_ring_keep),
             "ego_box": len(self.ego_box) in (0, 5),
             "terrain_raise": len(self.terrain_raise) in (0, 2),
-            "ego_offset": len(self.ego_offset) in (0, 2)
-            and all(0.0 <= v <= 3.0 for v in self.ego_offset),
-            "verge_raise": len(self.verge_raise) in (0, 2)
-            and all(0.0 <= v <= 1.0 for v in self.verge_raise),
+            "ego_offset": _optional(self.ego_offset, 2, 0.0, 3.0),
+            "verge_raise": _optional(self.verge_raise, 2, 0.0, 1.0),
             "lanes_p": abs(sum(self.lanes_p) - 1.0) < 1e-9 and min(self.lanes_p) >= 0,
             "frontage_p": abs(sum(self.frontage_p) - 1.0) < 1e-9 and min(self.frontage_p) >= 0,
-            "parking_prob": 0.0 <= self.parking_prob <= 1.0,
-            "parking_road": 0.0 <= self.parking_road <= 1.0,
-            "ego_inner_lane": 0.0 <= self.ego_inner_lane <= 1.0,
-            "side_street_prob": 0.0 <= self.side_street_prob <= 1.0,
             "side_street_width": 3.0 <= (w := self.side_street_width)[0] and w[1] <= 20.0,
             "fence_height": 0.2 <= self.fence_height[0] and self.fence_height[1] <= 4.0,
-            "fence_lattice": 0.0 <= self.fence_lattice <= 1.0,
-            "lot_raise": len(self.lot_raise) in (0, 2)
-            and all(0.0 <= v <= 1.0 for v in self.lot_raise),
-            "guard_rail": 0.0 <= self.guard_rail <= 1.0,
-            "verge_flush": 0.0 <= self.verge_flush <= 1.0,
-            "kerb_flush": 0.0 <= self.kerb_flush <= 1.0,
-            "verge_shrubs": 0.0 <= self.verge_shrubs <= 1.0,
-            "planting_beds": 0.0 <= self.planting_beds <= 1.0,
-            "lamp_keep": 0.0 <= self.lamp_keep <= 1.0,
-            "lamp_signs": 0.0 <= self.lamp_signs <= 1.0,
+            "lot_raise": _optional(self.lot_raise, 2, 0.0, 1.0),
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,
-            "verge_prob": 0.0 <= self.verge_prob <= 1.0,
-            "parked_fill": 0.0 <= self.parked_fill <= 1.0,
-            "parked_bus": 0.0 <= self.parked_bus <= 1.0,
-            "lead_car_prob": 0.0 <= self.lead_car_prob <= 1.0,
-            "back_row_prob": 0.0 <= self.back_row_prob <= 1.0,
-            "rem_dark_prob": 0.0 <= self.rem_dark_prob <= 1.0,
-            "rem_dark_stuff": 0.0 <= self.rem_dark_stuff <= 1.0,
             "rem_zero_below": 0.0 <= self.rem_zero_below < 1.0,
-            "rem_dark_other": len(self.rem_dark_other) in (0, 1)
-            and all(0.0 <= v <= 1.0 for v in self.rem_dark_other),
+            "rem_dark_other": _optional(self.rem_dark_other, 1, 0.0, 1.0),
             "rem_gain_people": 0.0 < self.rem_gain_people <= 10.0,
             "rem_gain_pole": 0.0 < self.rem_gain_pole <= 10.0,
             "rem_gain_sign": 0.0 < self.rem_gain_sign <= 10.0,
-            "rem_stuff_spread": len(self.rem_stuff_spread) in (0, 1)
-            and all(0.0 <= v <= 2.0 for v in self.rem_stuff_spread),
+            "rem_stuff_spread": _optional(self.rem_stuff_spread, 1, 0.0, 2.0),
             "rem_gain_vegetation": 0.0 < self.rem_gain_vegetation <= 10.0,
             "veg_rough": 0.0 <= self.veg_rough <= 5.0,
-            "rem_grazing": len(g := self.rem_grazing) in (0, 2) and all(0 <= v <= 0.3 for v in g),
+            "rem_grazing": _optional(self.rem_grazing, 2, 0.0, 0.3),
             "terrain_reflect": 0.0 <= self.terrain_reflect[0] and self.terrain_reflect[1] <= 1.0,
             "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
@@ -268,13 +247,11 @@ class WorldProfile:
             "ground_wave": 0.0 <= self.ground_wave <= 2.0,
             "camber": 0.0 <= self.camber <= 0.1,
             "terrain_rough": 0.0 <= self.terrain_rough <= 0.5,
-            "road_dark": 0.0 <= self.road_dark <= 1.0,
-            "road_reflect": 0.0 <= self.road_reflect <= 1.0,
             "road_reflect_range": len(self.road_reflect_range) in (0, 2)
             and all(0.0 <= v <= 1.0 for v in self.road_reflect_range)
             and list(self.road_reflect_range) == sorted(self.road_reflect_range),
-            "sidewalk_reflect": 0.0 <= self.sidewalk_reflect <= 1.0,
         }
+        checks.update({k: 0.0 <= getattr(self, k) <= 1.0 for k in _PROBABILITIES})
         problems += [
             f"{k} = {getattr(self, k)!r} is out of range" for k, ok in checks.items() if not ok
         ]
@@ -321,6 +298,11 @@ class WorldProfile:
             raise InputError(err.message, source) from None
 
 
+def _optional(values: tuple[float, ...], n: int, lo: float, hi: float) -> bool:
+    """True when ``values`` is empty or ``n`` numbers in ``[lo, hi]``."""
+    return len(values) in (0, n) and all(lo <= v <= hi for v in values)
+
+
 def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
     if typing.get_origin(hint) is tuple:
         args = typing.get_args(hint)
@@ -341,6 +323,15 @@ def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
         raise InputError(f"world profile key {key!r} must be a string, got {value!r}", source)
     return value
 
+
+#: Keys that are probabilities or fractions in [0, 1].
+_PROBABILITIES = (
+    "parking_prob", "parking_road", "ego_inner_lane", "side_street_prob", "fence_lattice",
+    "guard_rail", "verge_flush", "kerb_flush", "verge_shrubs", "planting_beds", "lamp_keep",
+    "lamp_signs", "verge_prob", "parked_fill", "parked_bus", "yard_cars", "lead_car_prob",
+    "back_row_prob", "rem_dark_prob", "rem_dark_stuff", "road_dark", "road_reflect",
+    "sidewalk_reflect"
+)  # fmt: skip
 
 CLASSIC = WorldProfile()
 _SENSOR_KEYS = (

@@ -27,6 +27,7 @@ from panoptic_bench.datasets.synthetic.street import (
     kerb_at,
 )
 from panoptic_bench.datasets.synthetic.things import Thing, build
+from panoptic_bench.datasets.synthetic.yards import yard_cars
 
 __all__ = ["Scene", "generate_scene"]
 
@@ -53,6 +54,11 @@ class Scene:
         m/s along +x.
     ego_y : float
         Lateral position of the ego path (its lane centre, moved by ``profile.ego_offset``).
+    ego_phase : float
+        Phase of the ego's lateral sway.
+    late_things : int
+        The last ``late_things`` things were added by a key drawn after every other draw
+        (``yard_cars``); the sensor draws their materials from a stream of their own.
     """
 
     static: Primitives
@@ -62,6 +68,7 @@ class Scene:
     ego_speed: float
     ego_y: float
     ego_phase: float = 0.0
+    late_things: int = 0
 
     def __post_init__(self) -> None:
         parts = []
@@ -273,4 +280,9 @@ def generate_scene(
             rng.spawn(1)[0], things[:n_parked], plan.parking, plan.profile.parked_bus
         )
         things = buses + things[n_parked:]
-    return Scene(static, ground, plan, things, speed, ego_y, float(rng.uniform(0, 2 * np.pi)))
+    late: list[Thing] = []
+    if plan.profile.yard_cars:
+        # its own stream, spawned after every other one; the sensor draws their materials apart
+        late = yard_cars(rng.spawn(1)[0], plan.yards, plan.profile.yard_cars)
+    phase = float(rng.uniform(0, 2 * np.pi))
+    return Scene(static, ground, plan, things + late, speed, ego_y, phase, len(late))

@@ -108,6 +108,19 @@ def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) 
         ]
     )
     labels = np.concatenate([scene.static.label, scene._local.label])
+    late = sum(len(t.prims) for t in scene.things[len(scene.things) - scene.late_things :])
+    gain = _materials(profile, labels[: labels.size - late], rng)
+    if late:  # things added by a late key: their own stream, the others' draws unchanged
+        gain = np.concatenate([gain, _materials(profile, labels[-late:], rng.spawn(1)[0])])
+    rough = None
+    if profile.ground_rough and profile.ground_rough_corr > 0:
+        rough = rough_field(rng, profile.ground_rough, profile.ground_rough_corr)
+    return SensorState(float(h), tilt_matrix(pitch, roll), wave, gain.astype(np.float32), rough)
+
+
+def _materials(profile: WorldProfile, labels: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Reflectivity factor (n,) float64 of primitives with raw ids ``labels`` (n,): material
+    spread, dark paint / glass, the per-class gains."""
     vehicle = np.isin(labels, _VEHICLES)
     if profile.rem_stuff_spread:  # same draws, another spread for the stuff primitives
         stuff = ~vehicle & ~np.isin(labels, PEOPLE)
@@ -127,10 +140,7 @@ def sensor_state(profile: WorldProfile, scene: Scene, rng: np.random.Generator) 
     ):
         if factor != 1.0:
             gain = np.where(np.isin(labels, ids), factor * gain, gain)
-    rough = None
-    if profile.ground_rough and profile.ground_rough_corr > 0:
-        rough = rough_field(rng, profile.ground_rough, profile.ground_rough_corr)
-    return SensorState(float(h), tilt_matrix(pitch, roll), wave, gain.astype(np.float32), rough)
+    return gain
 
 
 #: Number of random cosines of a smooth roughness field.

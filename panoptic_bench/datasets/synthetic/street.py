@@ -60,6 +60,9 @@ class StreetPlan:
         Per segment, the distance of the kerb (sidewalk inner edge) from the centre line.
     kerb : list of (side, x0, x1, height)
         Per segment, the kerb (sidewalk) height; :data:`KERB` where no segment is listed.
+    yards : list of (side, x0, x1, y_front, y_back, z)
+        Per green, fence or plaza frontage, the open ground behind the sidewalk (unsigned
+        distances from the centre line) and its height: where ``yard_cars`` parks cars.
     profile : WorldProfile
         The world profile the street was built with.
     """
@@ -71,6 +74,7 @@ class StreetPlan:
     parking: list = field(default_factory=list)
     curb: list = field(default_factory=list)
     kerb: list = field(default_factory=list)
+    yards: list = field(default_factory=list)
     profile: WorldProfile = CLASSIC
 
 
@@ -201,14 +205,14 @@ def _segment(
                 raised_lot(b, lot_rng, prof, x0, x1, ys, label)
         _buildings(b, rng, x0, x1, side, y_front + setback)
         return
+    z = 0.0
     if kind == "plaza":
         ys = sorted((side * y_front, side * back))
         if lot_rng is None:
             gm.paint(x0, x1, ys[0], ys[1], OTHER_GROUND, 0.28)
         else:
-            raised_lot(b, lot_rng, prof, x0, x1, ys, OTHER_GROUND)
+            z = raised_lot(b, lot_rng, prof, x0, x1, ys, OTHER_GROUND)
     else:
-        z = 0.0
         if prof.terrain_raise:
             z = float(rng.uniform(*prof.terrain_raise))
             ys = sorted((side * y_front, side * back))
@@ -245,6 +249,7 @@ def _segment(
             tree(b, rng, xt, yt, z, prof.trunk_height)
         for _ in range(rng.poisson(length / prof.bush_spacing)):
             bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
+    plan.yards.append((side, x0, x1, y_front, back, z))
     if prof.back_row_prob >= 1.0 or rng.random() < prof.back_row_prob:
         _buildings(b, rng, x0, x1, side, back, heights=(8.0, 25.0))
 
