@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic_street_checks import profile_changes
 
 from panoptic_bench.datasets.synthetic.plants import BED_WIDTH, SHRUB_HALF, SHRUB_HEIGHT
 from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
-from panoptic_bench.datasets.synthetic.profile_files import load_profile
 from panoptic_bench.datasets.synthetic.sequence import Sequence
 from panoptic_bench.datasets.synthetic.shapes import BOX, ELLIPSOID
 from panoptic_bench.datasets.synthetic.street import build_street
@@ -144,18 +144,13 @@ def test_bad_values(bad):
     "name", ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"]
 )
 def test_row_39_profiles_are_row_38_worlds_plus_beds_and_shrubs(name):
-    new = load_profile(str(REPO / "configs" / f"synth_bed_{name}.yaml")).to_dict()
-    old = load_profile(str(REPO / "configs" / f"synth_kerb_{name}.yaml")).to_dict()
-    assert {k for k, v in new.items() if old[k] != v} == {"name", "planting_beds", "verge_shrubs"}
-    assert new["planting_beds"] == 0.6 and new["verge_shrubs"] == 1.0
+    changed = profile_changes(f"synth_bed_{name}", f"synth_kerb_{name}")
+    assert changed == {"planting_beds": 0.6, "verge_shrubs": 1.0}
 
 
 @pytest.mark.parametrize(
     "name", ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"]
 )
 def test_row_40_profiles_are_row_39_worlds_with_the_real_ground_shares(name):
-    new = load_profile(str(REPO / "configs" / f"synth_ground_{name}.yaml")).to_dict()
-    old = load_profile(str(REPO / "configs" / f"synth_bed_{name}.yaml")).to_dict()
-    changed = {k for k, v in new.items() if old[k] != v}
-    assert changed == {"name", "verge_prob", "sidewalk", "parked_fill"}
-    assert (new["verge_prob"], tuple(new["sidewalk"]), new["parked_fill"]) == (0.2, (3.0, 6.0), 0.5)
+    changed = profile_changes(f"synth_ground_{name}", f"synth_bed_{name}")
+    assert changed == {"verge_prob": 0.2, "sidewalk": (3.0, 6.0), "parked_fill": 0.5}

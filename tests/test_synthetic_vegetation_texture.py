@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic_street_checks import by_beam, profile_changes
 
 from panoptic_bench.datasets.synthetic import Sequence
 from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
-from panoptic_bench.datasets.synthetic.profile_files import load_profile
 from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
 from panoptic_bench.errors import InputError
 
@@ -52,17 +52,13 @@ def test_texture_rows_by_hand():
     assert np.isnan(m_far["building_texture_mm"])
 
 
-def _by_beam(sweep) -> dict[int, int]:
-    return {int(k): i for i, k in enumerate(sweep.ring.astype(np.int64) * 100_000 + sweep.column)}
-
-
 def test_veg_rough_moves_only_vegetation_returns_towards_the_sensor():
     prof = dataclasses.replace(REALISTIC, veg_rough=0.35)
     a = Sequence(2, 3, 1, profile=REALISTIC).frame(0).sweep
     b = Sequence(2, 3, 1, profile=prof).frame(0).sweep
     same = Sequence(2, 3, 1, profile=dataclasses.replace(REALISTIC, veg_rough=1.0)).frame(0).sweep
     np.testing.assert_array_equal(a.xyz, same.xyz)  # the default is every world bit for bit
-    ia, ib = _by_beam(a), _by_beam(b)
+    ia, ib = by_beam(a), by_beam(b)
     common = sorted(set(ia) & set(ib))
     assert len(common) > 0.99 * len(a)  # only returns at the range limits may come or go
     pa, pb = np.array([ia[k] for k in common]), np.array([ib[k] for k in common])
@@ -93,7 +89,6 @@ def test_bad_veg_rough(value):
     "world", ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"]
 )
 def test_row_25_files_are_row_18a_worlds_plus_veg_rough(world):
-    base = load_profile(str(REPO / "configs" / f"synth_realistic_{world}.yaml"))
-    new = load_profile(str(REPO / "configs" / f"synth_vegtex_{world}.yaml"))
-    changed = {k for k, v in new.to_dict().items() if base.to_dict()[k] != v}
-    assert changed == {"name", "veg_rough"} and new.veg_rough == 0.35
+    assert profile_changes(f"synth_vegtex_{world}", f"synth_realistic_{world}") == {
+        "veg_rough": 0.35
+    }

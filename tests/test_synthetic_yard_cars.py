@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic_street_checks import WORLDS, by_beam, profile_changes
 
 from panoptic_bench.datasets.synthetic import Sequence
 from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
-from panoptic_bench.datasets.synthetic.profile_files import load_profile
 from panoptic_bench.datasets.synthetic.scene import generate_scene
 from panoptic_bench.datasets.synthetic.yards import EDGE_M, yard_cars
 from panoptic_bench.errors import InputError
@@ -80,8 +80,7 @@ def test_yard_cars_keep_every_other_material_and_return():
     np.testing.assert_array_equal(sa.state.rough, sb.state.rough)
     # a ray that does not hit a yard car sees what it saw without them; only the per-return noise
     # draws (range noise, remission spread, dropout) are drawn in a different order
-    key_a = {int(k): i for i, k in enumerate(a.ring.astype(np.int64) * 100_000 + a.column)}
-    key_b = {int(k): i for i, k in enumerate(b.ring.astype(np.int64) * 100_000 + b.column)}
+    key_a, key_b = by_beam(a), by_beam(b)
     first_yard = len(sa.scene.things) + 1
     hit = [ib for ib in key_b.values() if b.instance[ib] >= first_yard]
     pairs = np.array(
@@ -100,11 +99,6 @@ def test_bad_yard_cars(value):
         WorldProfile.from_dict({"yard_cars": value}, base=REALISTIC)
 
 
-@pytest.mark.parametrize(
-    "world", ["low_crowns_low_fences", "low_fences_tight_materials", "low_fences_raised_lots"]
-)
+@pytest.mark.parametrize("world", WORLDS)
 def test_row_44_files_are_row_38_worlds_plus_yard_cars(world):
-    base = load_profile(str(REPO / "configs" / f"synth_kerb_{world}.yaml"))
-    new = load_profile(str(REPO / "configs" / f"synth_yard_{world}.yaml"))
-    changed = {k for k, v in new.to_dict().items() if base.to_dict()[k] != v}
-    assert changed == {"name", "yard_cars"} and new.yard_cars == 0.4
+    assert profile_changes(f"synth_yard_{world}", f"synth_kerb_{world}") == {"yard_cars": 0.4}
