@@ -8,9 +8,11 @@ A checkpoint is one ``torch.save`` file holding only builtins and tensors (loada
      "class_map": ClassMap.to_dict(), "class_weights": [float] | None,
      "backbone": state_dict, "shift": state_dict | None,
      "optimizer": state_dict | None, "rng": {"torch": ByteTensor} | None,
-     "metrics": [per-epoch dict, ...]}
+     "average": state_dict | None, "metrics": [per-epoch dict, ...]}
 
-:func:`export_checkpoint` drops the optimizer and RNG state for a small release file.
+``average`` is the running weight mean of an unfinished stage with ``optim.swa_epochs``
+(:mod:`panoptic_bench.dsnet.training.averaging`). :func:`export_checkpoint` drops the optimizer,
+RNG state and average for a small release file.
 """
 
 from __future__ import annotations
@@ -184,6 +186,7 @@ class Checkpoint:
     shift: dict[str, torch.Tensor] | None = None
     optimizer: dict | None = None
     rng: dict | None = None
+    average: dict[str, torch.Tensor] | None = None
     class_weights: list[float] | None = None
     metrics: list[dict] = field(default_factory=list)
     path: Path | None = None
@@ -205,6 +208,7 @@ class Checkpoint:
             "shift": self.shift,
             "optimizer": self.optimizer,
             "rng": self.rng,
+            "average": self.average,
             "metrics": self.metrics,
         }
 
@@ -246,6 +250,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         shift=raw.get("shift"),
         optimizer=raw.get("optimizer"),
         rng=raw.get("rng"),
+        average=raw.get("average"),
         class_weights=raw.get("class_weights"),
         metrics=list(raw.get("metrics") or []),
         path=path,
@@ -321,7 +326,7 @@ def widen_point_inputs(state: dict, module: nn.Module) -> dict:
 
 
 def export_checkpoint(src: str | Path, dst: str | Path, half: bool = False) -> Path:
-    """Copy a checkpoint without optimizer and RNG state (a release file for inference).
+    """Copy a checkpoint without optimizer, RNG state and weight average (a release file).
 
     Parameters
     ----------
@@ -332,6 +337,7 @@ def export_checkpoint(src: str | Path, dst: str | Path, half: bool = False) -> P
     ckpt = load_checkpoint(src)
     ckpt.optimizer = None
     ckpt.rng = None
+    ckpt.average = None
     if half:
         ckpt.backbone = _half(ckpt.backbone)
         ckpt.shift = None if ckpt.shift is None else _half(ckpt.shift)

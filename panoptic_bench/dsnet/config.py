@@ -120,6 +120,11 @@ class OptimConfig:
     for the first ``lr_flat_epochs`` epochs of a stage, then follows a half cosine down to
     ``lr_min`` at the stage's last epoch. The rate of an epoch depends only on the epoch and the
     stage's total, so resuming reproduces it.
+
+    Weight averaging (off by default, :mod:`panoptic_bench.dsnet.training.averaging`):
+    ``swa_epochs`` = k > 0 makes the semantic and offset stages end on the mean of the backbone's
+    weights over every step of their last k epochs, with BatchNorm statistics measured again on
+    ``swa_bn_scans`` training scans of the last epoch's order (0: all of them).
     """
 
     lr: float = 0.002
@@ -134,6 +139,8 @@ class OptimConfig:
     seed: int = 0
     num_workers: int = 0
     val_every: int = 1
+    swa_epochs: int = 0
+    swa_bn_scans: int = 0
 
     def validate(self) -> list[str]:
         problems = []
@@ -145,7 +152,8 @@ class OptimConfig:
             problems.append(f"optim.lr_flat_epochs must be >= 0, got {self.lr_flat_epochs}")
         if self.batch_size < 1:
             problems.append(f"optim.batch_size must be >= 1, got {self.batch_size}")
-        for name in ("epochs_semantic", "epochs_offset", "epochs_ds", "num_workers"):
+        names = ("epochs_semantic", "epochs_offset", "epochs_ds", "num_workers")
+        for name in names + ("swa_epochs", "swa_bn_scans"):
             if getattr(self, name) < 0:
                 problems.append(f"optim.{name} must be >= 0")
         if self.val_every < 1:

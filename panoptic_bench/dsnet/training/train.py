@@ -17,8 +17,6 @@ its shard of the samples (DDP) and validation accumulators are summed over the p
 
 from __future__ import annotations
 
-import csv
-import io
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,26 +42,17 @@ from panoptic_bench.dsnet.data.bank import open_bank
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, open_dataset
 from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.dsnet.model.forward import backbone_forward
+from panoptic_bench.dsnet.training.averaging import (
+    StepAverage,
+    averaging_starts,
+    recalibrate_batchnorm,
+)
+from panoptic_bench.dsnet.training.metrics_log import write_metrics_csv
 from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
 from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
 from panoptic_bench.errors import InputError
-from panoptic_bench.io import write_text
 
 __all__ = ["TrainContext", "train", "run_stage", "train_one_epoch"]
-
-CSV_FIELDS = (
-    "stage",
-    "epoch",
-    "lr",
-    "train_loss",
-    "val_mIoU",
-    "val_PQ",
-    "val_PQ_th",
-    "val_PQ_st",
-    "val_SQ",
-    "val_RQ",
-    "seconds",
-)
 
 
 @dataclass
@@ -252,12 +241,17 @@ def run_stage(
             torch.set_rng_state(own.rng["torch"])
     total = epochs if epochs is not None else getattr(ctx.cfg.optim, f"epochs_{stage}")
     model = _wrap(stage, backbone, shift, ctx)
+    average, avg_from = _step_average(stage, backbone, own, ctx, total)
     for epoch in range(start_epoch, total):
         t0 = time.perf_counter()
         lr = ctx.cfg.optim.lr_at(epoch, total)
         for group in optimizer.param_groups:
             group["lr"] = lr
-        loss = train_one_epoch(stage, model, backbone, shift, optimizer, ctx, epoch)
+        in_mean = average if epoch >= avg_from else None
+        loss = train_one_epoch(stage, model, backbone, shift, optimizer, ctx, epoch, in_mean)
+        if average is not None and epoch + 1 == total:
+            _finish_average(average, backbone, ctx, epoch)
+            average = None
         row = {"stage": stage, "epoch": epoch + 1, "lr": lr, "train_loss": loss}
         if (epoch + 1) % max(ctx.cfg.optim.val_every, 1) == 0 or epoch + 1 == total:
             row.update(_validate(stage, backbone, shift, ctx))
@@ -265,12 +259,39 @@ def run_stage(
         history.append(row)
         if ctx.info.is_main:
             ckpt = _make_checkpoint(stage, epoch + 1, ctx, backbone, shift, optimizer, history)
+            ckpt.average = None if average is None else average.state_dict()
             save_checkpoint(ckpt, path)
-            _write_metrics_csv(ctx.run_dir, stage, history)
+            write_metrics_csv(ctx.run_dir, stage, history)
         ddp.barrier(ctx.info)
     if start_epoch >= total and ctx.info.is_main and not path.is_file():
         save_checkpoint(_make_checkpoint(stage, 0, ctx, backbone, shift, optimizer, history), path)
     return path
+
+
+def _step_average(
+    stage: str, backbone: nn.Module, own: Checkpoint | None, ctx: TrainContext, total: int
+) -> tuple[StepAverage | None, int]:
+    """The stage's weight average (None when ``optim.swa_epochs`` is 0 or in stage ``ds``)
+    and the first epoch it takes steps from; resumed from ``own.average`` when stored."""
+    if stage == "ds" or ctx.cfg.optim.swa_epochs <= 0:
+        return None, total
+    stored = None if own is None else own.average
+    return StepAverage(backbone, stored), averaging_starts(total, ctx.cfg.optim.swa_epochs)
+
+
+def _finish_average(average: StepAverage, backbone: nn.Module, ctx: TrainContext, epoch: int):
+    """Give ``backbone`` the mean weights and re-measure its BatchNorm statistics on this
+    rank's training scans of ``epoch`` (the first ``optim.swa_bn_scans`` of them; 0: all)."""
+    from tqdm import tqdm
+
+    average.copy_to(backbone)
+    order = ddp.shard_order(len(ctx.train_set), epoch, ctx.cfg.optim.seed, ctx.info, shuffle=True)
+    if ctx.cfg.optim.swa_bn_scans > 0:
+        order = order[: ctx.cfg.optim.swa_bn_scans]
+    ctx.train_set.set_epoch(epoch)
+    scans = (ctx.train_set[i] for i in tqdm(order, desc="BatchNorm", disable=not ctx.progress))
+    dev = ctx.info.device
+    recalibrate_batchnorm(backbone, scans, lambda net, s: backbone_forward(net, [s], ctx.grid, dev))
 
 
 def _wrap(stage: str, backbone: nn.Module, shift: nn.Module | None, ctx: TrainContext):
@@ -297,8 +318,11 @@ def train_one_epoch(
     optimizer: torch.optim.Optimizer,
     ctx: TrainContext,
     epoch: int,
+    average: StepAverage | None = None,
 ) -> float:
-    """One pass over this rank's shard of the training set; returns the mean loss over ranks."""
+    """One pass over this rank's shard of the training set; returns the mean loss over ranks.
+
+    ``average``, when given, takes the backbone's weights after every optimiser step."""
     from tqdm import tqdm
 
     frozen = stage == "ds" and ctx.cfg.dynamic_shift.freeze_backbone
@@ -318,6 +342,8 @@ def train_one_epoch(
         loss = _step_loss(stage, model, samples, ctx, weights, frozen)
         loss.backward()
         optimizer.step()
+        if average is not None:
+            average.update(backbone)
         losses.append(float(loss.detach()))
         bar.set_postfix(loss=f"{losses[-1]:.3f}")
     mean = float(np.mean(losses)) if losses else 0.0
@@ -372,24 +398,3 @@ def _make_checkpoint(stage, epoch, ctx, backbone, shift, optimizer, history) -> 
         class_weights=ctx.class_weights,
         metrics=list(history),
     )
-
-
-def _write_metrics_csv(run_dir: Path, stage: str, history: list[dict]) -> None:
-    """Rewrite ``metrics.csv``: rows of the other stages kept, this stage's rows replaced."""
-    path = run_dir / "metrics.csv"
-    rows = []
-    if path.is_file():
-        with open(path, newline="") as fh:
-            rows = [r for r in csv.DictReader(fh) if r.get("stage") != stage]
-    rows += history
-    rows.sort(key=lambda r: (STAGES.index(r["stage"]), int(r["epoch"])))
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS, extrasaction="ignore")
-    writer.writeheader()
-    for r in rows:
-        writer.writerow({k: _fmt(r.get(k, "")) for k in CSV_FIELDS})
-    write_text(path, buf.getvalue())
-
-
-def _fmt(value) -> str:
-    return f"{value:.6g}" if isinstance(value, float) else str(value)
