@@ -151,6 +151,20 @@ def test_resume_inside_the_window_is_bit_for_bit(world: Path, tmp_path: Path, mo
     assert load_checkpoint(tmp_path / "x.pt").average is None
 
 
+def test_an_averaged_stage_is_not_trained_on(world: Path, tmp_path: Path):
+    cfg = _cfg(swa_epochs=1)
+    train(cfg, world, tmp_path, stage="semantic", epochs=1, progress=False)
+    ck = load_checkpoint(tmp_path / "checkpoints" / "semantic.pt")
+    assert ck.metrics[-1]["swa_steps"] == 2
+    with pytest.raises(InputError, match="already ended on its weight average") as err:
+        train(cfg, world, tmp_path, stage="semantic", epochs=2, resume=True, progress=False)
+    assert "semantic.pt" in str(err.value)
+    # resuming a finished stage to the same length changes nothing
+    train(cfg, world, tmp_path, stage="semantic", epochs=1, resume=True, progress=False)
+    again = load_checkpoint(tmp_path / "checkpoints" / "semantic.pt")
+    assert all(torch.equal(again.backbone[k], ck.backbone[k]) for k in ck.backbone)
+
+
 def test_bad_averaging_settings():
     for key in ("swa_epochs", "swa_bn_scans"):
         with pytest.raises(InputError, match=f"optim.{key}"):

@@ -17,13 +17,28 @@ training data; the synthetic-to-real gap of issue 13 is such a case.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import nn
 from torch.optim.swa_utils import AveragedModel, update_bn
 
-__all__ = ["StepAverage", "averaging_starts", "recalibrate_batchnorm"]
+from panoptic_bench.dsnet import distributed as ddp
+from panoptic_bench.dsnet.model.forward import backbone_forward
+from panoptic_bench.dsnet.training.resume import checkpoint_path
+from panoptic_bench.errors import InputError
+
+if TYPE_CHECKING:
+    from panoptic_bench.dsnet.checkpoint import Checkpoint
+    from panoptic_bench.dsnet.training.train import TrainContext
+
+__all__ = [
+    "StepAverage",
+    "averaging_starts",
+    "finish_stage_average",
+    "recalibrate_batchnorm",
+    "stage_average",
+]
 
 
 def averaging_starts(total: int, swa_epochs: int) -> int:
@@ -114,3 +129,35 @@ def recalibrate_batchnorm(
     was_training = backbone.training
     update_bn(((s,) for s in samples), _Forward(backbone, forward))
     backbone.train(was_training)
+
+
+def stage_average(
+    stage: str, backbone: nn.Module, own: Checkpoint | None, ctx: TrainContext, total: int
+) -> tuple[StepAverage | None, int]:
+    """The stage's weight average (None when ``optim.swa_epochs`` is 0 or in stage ``ds``)
+    and the first epoch it takes steps from; resumed from ``own.average`` when stored."""
+    if stage == "ds" or ctx.cfg.optim.swa_epochs <= 0:
+        return None, total
+    if own is not None and own.epoch < total and any("swa_steps" in r for r in own.metrics):
+        raise InputError(
+            f"this {stage} stage already ended on its weight average at epoch {own.epoch}; "
+            "training on would start from the mean: train a new run with the full --epochs",
+            checkpoint_path(ctx.run_dir, stage),
+        )
+    stored = None if own is None else own.average
+    return StepAverage(backbone, stored), averaging_starts(total, ctx.cfg.optim.swa_epochs)
+
+
+def finish_stage_average(average: StepAverage, backbone: nn.Module, ctx: TrainContext, epoch: int):
+    """Give ``backbone`` the mean weights and re-measure its BatchNorm statistics on this
+    rank's training scans of ``epoch`` (the first ``optim.swa_bn_scans`` of them; 0: all)."""
+    from tqdm import tqdm
+
+    average.copy_to(backbone)
+    order = ddp.shard_order(len(ctx.train_set), epoch, ctx.cfg.optim.seed, ctx.info, shuffle=True)
+    if ctx.cfg.optim.swa_bn_scans > 0:
+        order = order[: ctx.cfg.optim.swa_bn_scans]
+    ctx.train_set.set_epoch(epoch)
+    scans = (ctx.train_set[i] for i in tqdm(order, desc="BatchNorm", disable=not ctx.progress))
+    dev = ctx.info.device
+    recalibrate_batchnorm(backbone, scans, lambda net, s: backbone_forward(net, [s], ctx.grid, dev))

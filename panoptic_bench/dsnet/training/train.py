@@ -44,8 +44,8 @@ from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.training.averaging import (
     StepAverage,
-    averaging_starts,
-    recalibrate_batchnorm,
+    finish_stage_average,
+    stage_average,
 )
 from panoptic_bench.dsnet.training.metrics_log import write_metrics_csv
 from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
@@ -241,7 +241,7 @@ def run_stage(
             torch.set_rng_state(own.rng["torch"])
     total = epochs if epochs is not None else getattr(ctx.cfg.optim, f"epochs_{stage}")
     model = _wrap(stage, backbone, shift, ctx)
-    average, avg_from = _step_average(stage, backbone, own, ctx, total)
+    average, avg_from = stage_average(stage, backbone, own, ctx, total)
     for epoch in range(start_epoch, total):
         t0 = time.perf_counter()
         lr = ctx.cfg.optim.lr_at(epoch, total)
@@ -249,10 +249,11 @@ def run_stage(
             group["lr"] = lr
         in_mean = average if epoch >= avg_from else None
         loss = train_one_epoch(stage, model, backbone, shift, optimizer, ctx, epoch, in_mean)
-        if average is not None and epoch + 1 == total:
-            _finish_average(average, backbone, ctx, epoch)
-            average = None
         row = {"stage": stage, "epoch": epoch + 1, "lr": lr, "train_loss": loss}
+        if average is not None and epoch + 1 == total:
+            row["swa_steps"] = average.count
+            finish_stage_average(average, backbone, ctx, epoch)
+            average = None
         if (epoch + 1) % max(ctx.cfg.optim.val_every, 1) == 0 or epoch + 1 == total:
             row.update(_validate(stage, backbone, shift, ctx))
         row["seconds"] = time.perf_counter() - t0
@@ -266,32 +267,6 @@ def run_stage(
     if start_epoch >= total and ctx.info.is_main and not path.is_file():
         save_checkpoint(_make_checkpoint(stage, 0, ctx, backbone, shift, optimizer, history), path)
     return path
-
-
-def _step_average(
-    stage: str, backbone: nn.Module, own: Checkpoint | None, ctx: TrainContext, total: int
-) -> tuple[StepAverage | None, int]:
-    """The stage's weight average (None when ``optim.swa_epochs`` is 0 or in stage ``ds``)
-    and the first epoch it takes steps from; resumed from ``own.average`` when stored."""
-    if stage == "ds" or ctx.cfg.optim.swa_epochs <= 0:
-        return None, total
-    stored = None if own is None else own.average
-    return StepAverage(backbone, stored), averaging_starts(total, ctx.cfg.optim.swa_epochs)
-
-
-def _finish_average(average: StepAverage, backbone: nn.Module, ctx: TrainContext, epoch: int):
-    """Give ``backbone`` the mean weights and re-measure its BatchNorm statistics on this
-    rank's training scans of ``epoch`` (the first ``optim.swa_bn_scans`` of them; 0: all)."""
-    from tqdm import tqdm
-
-    average.copy_to(backbone)
-    order = ddp.shard_order(len(ctx.train_set), epoch, ctx.cfg.optim.seed, ctx.info, shuffle=True)
-    if ctx.cfg.optim.swa_bn_scans > 0:
-        order = order[: ctx.cfg.optim.swa_bn_scans]
-    ctx.train_set.set_epoch(epoch)
-    scans = (ctx.train_set[i] for i in tqdm(order, desc="BatchNorm", disable=not ctx.progress))
-    dev = ctx.info.device
-    recalibrate_batchnorm(backbone, scans, lambda net, s: backbone_forward(net, [s], ctx.grid, dev))
 
 
 def _wrap(stage: str, backbone: nn.Module, shift: nn.Module | None, ctx: TrainContext):
