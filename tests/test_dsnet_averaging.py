@@ -151,6 +151,21 @@ def test_resume_inside_the_window_is_bit_for_bit(world: Path, tmp_path: Path, mo
     assert load_checkpoint(tmp_path / "x.pt").average is None
 
 
+def test_no_mean_is_stored_before_the_window(world: Path, tmp_path: Path, monkeypatch):
+    real_epoch = train_mod.train_one_epoch
+
+    def crash_in_second(stage, model, backbone, shift, optimizer, ctx, epoch, average=None):
+        if epoch == 1:
+            raise KeyboardInterrupt
+        return real_epoch(stage, model, backbone, shift, optimizer, ctx, epoch, average)
+
+    monkeypatch.setattr(train_mod, "train_one_epoch", crash_in_second)
+    with pytest.raises(KeyboardInterrupt):
+        train(_cfg(swa_epochs=1), world, tmp_path, stage="semantic", epochs=2, progress=False)
+    first = load_checkpoint(tmp_path / "checkpoints" / "semantic.pt")
+    assert first.epoch == 1 and first.average is None
+
+
 def test_an_averaged_stage_is_not_trained_on(world: Path, tmp_path: Path):
     cfg = _cfg(swa_epochs=1)
     train(cfg, world, tmp_path, stage="semantic", epochs=1, progress=False)

@@ -260,7 +260,8 @@ def run_stage(
         history.append(row)
         if ctx.info.is_main:
             ckpt = _make_checkpoint(stage, epoch + 1, ctx, backbone, shift, optimizer, history)
-            ckpt.average = None if average is None else average.state_dict()
+            if average is not None and average.count:  # only once the window has begun
+                ckpt.average = average.state_dict()
             save_checkpoint(ckpt, path)
             write_metrics_csv(ctx.run_dir, stage, history)
         ddp.barrier(ctx.info)
