@@ -33,6 +33,7 @@ from panoptic_bench.dsnet.config_enums import (  # noqa: F401 - re-exported
     ShiftKernel,
 )
 from panoptic_bench.dsnet.config_fields import section_from_dict, section_to_dict
+from panoptic_bench.dsnet.config_optim import OptimConfig  # also re-exported
 from panoptic_bench.errors import InputError
 
 #: Values of ``inference.bn_stats`` (:mod:`panoptic_bench.dsnet.inference.scan_norm`).
@@ -110,63 +111,6 @@ class ModelConfig:
         if self.shape_features and self.variant is NetworkVariant.OFFICIAL:
             problems.append("model.shape_features is not part of the official network")
         return problems
-
-
-@dataclass(frozen=True)
-class OptimConfig:
-    """Adam optimisation, learning-rate schedule, epochs per training stage, batch size, seed.
-
-    ``lr_schedule`` is ``constant`` (the paper) or ``cosine``: the learning rate stays at ``lr``
-    for the first ``lr_flat_epochs`` epochs of a stage, then follows a half cosine down to
-    ``lr_min`` at the stage's last epoch. The rate of an epoch depends only on the epoch and the
-    stage's total, so resuming reproduces it.
-
-    Weight averaging (off by default, :mod:`panoptic_bench.dsnet.training.averaging`):
-    ``swa_epochs`` = k > 0 makes the semantic and offset stages end on the mean of the backbone's
-    weights over every step of their last k epochs, with BatchNorm statistics measured again on
-    ``swa_bn_scans`` training scans of the last epoch's order (0: all of them).
-    """
-
-    lr: float = 0.002
-    lr_schedule: LRSchedule = LRSchedule.CONSTANT
-    lr_min: float = 0.0
-    lr_flat_epochs: int = 0
-    weight_decay: float = 0.0
-    batch_size: int = 2
-    epochs_semantic: int = 40
-    epochs_offset: int = 40
-    epochs_ds: int = 10
-    seed: int = 0
-    num_workers: int = 0
-    val_every: int = 1
-    swa_epochs: int = 0
-    swa_bn_scans: int = 0
-
-    def validate(self) -> list[str]:
-        problems = []
-        if not self.lr > 0:
-            problems.append(f"optim.lr must be > 0, got {self.lr}")
-        if not 0 <= self.lr_min <= self.lr:
-            problems.append(f"optim.lr_min must be in [0, lr], got {self.lr_min}")
-        if self.lr_flat_epochs < 0:
-            problems.append(f"optim.lr_flat_epochs must be >= 0, got {self.lr_flat_epochs}")
-        if self.batch_size < 1:
-            problems.append(f"optim.batch_size must be >= 1, got {self.batch_size}")
-        names = ("epochs_semantic", "epochs_offset", "epochs_ds", "num_workers")
-        for name in names + ("swa_epochs", "swa_bn_scans"):
-            if getattr(self, name) < 0:
-                problems.append(f"optim.{name} must be >= 0")
-        if self.val_every < 1:
-            problems.append(f"optim.val_every must be >= 1, got {self.val_every}")
-        return problems
-
-    def lr_at(self, epoch: int, total: int) -> float:
-        """Learning rate of 0-based ``epoch`` in a stage of ``total`` epochs."""
-        if self.lr_schedule is LRSchedule.CONSTANT or epoch < self.lr_flat_epochs:
-            return self.lr
-        span = max(total - self.lr_flat_epochs, 1)
-        frac = min((epoch - self.lr_flat_epochs) / span, 1.0)
-        return self.lr_min + 0.5 * (self.lr - self.lr_min) * (1.0 + math.cos(math.pi * frac))
 
 
 @dataclass(frozen=True)

@@ -47,6 +47,7 @@ from panoptic_bench.dsnet.training.averaging import (
     finish_stage_average,
     stage_average,
 )
+from panoptic_bench.dsnet.training.batchnorm import hold_batchnorm_statistics
 from panoptic_bench.dsnet.training.metrics_log import write_metrics_csv
 from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
 from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
@@ -303,6 +304,8 @@ def train_one_epoch(
 
     frozen = stage == "ds" and ctx.cfg.dynamic_shift.freeze_backbone
     backbone.train(not frozen)
+    if ctx.cfg.optim.freeze_bn and not frozen:
+        hold_batchnorm_statistics(backbone)
     if shift is not None:
         shift.train()
     ctx.train_set.set_epoch(epoch)

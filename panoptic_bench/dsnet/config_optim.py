@@ -1,0 +1,80 @@
+"""The ``optim`` section of the DS-Net configuration (split from :mod:`.config`).
+
+Re-exported by :mod:`panoptic_bench.dsnet.config`; import it from there.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from panoptic_bench.dsnet.config_enums import LRSchedule
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """Adam optimisation, learning-rate schedule, epochs per training stage, batch size, seed.
+
+    ``lr_schedule`` is ``constant`` (the paper) or ``cosine``: the learning rate stays at ``lr``
+    for the first ``lr_flat_epochs`` epochs of a stage, then follows a half cosine down to
+    ``lr_min`` at the stage's last epoch. The rate of an epoch depends only on the epoch and the
+    stage's total, so resuming reproduces it.
+
+    Weight averaging (off by default, :mod:`panoptic_bench.dsnet.training.averaging`):
+    ``swa_epochs`` = k > 0 makes the semantic and offset stages end on the mean of the backbone's
+    weights over every step of their last k epochs, with BatchNorm statistics measured again on
+    ``swa_bn_scans`` training scans of the last epoch's order (0: all of them).
+
+    ``freeze_bn`` (off by default): in the semantic and offset stages every BatchNorm of the
+    backbone normalises with the running statistics it starts the stage with (from ``--init`` or
+    the previous stage), in training as at inference, and never updates them
+    (:mod:`panoptic_bench.dsnet.training.batchnorm`); it cannot be combined with ``swa_epochs``,
+    which re-measures them.
+    """
+
+    lr: float = 0.002
+    lr_schedule: LRSchedule = LRSchedule.CONSTANT
+    lr_min: float = 0.0
+    lr_flat_epochs: int = 0
+    weight_decay: float = 0.0
+    batch_size: int = 2
+    epochs_semantic: int = 40
+    epochs_offset: int = 40
+    epochs_ds: int = 10
+    seed: int = 0
+    num_workers: int = 0
+    val_every: int = 1
+    swa_epochs: int = 0
+    swa_bn_scans: int = 0
+    freeze_bn: bool = False
+
+    def validate(self) -> list[str]:
+        problems = []
+        if not self.lr > 0:
+            problems.append(f"optim.lr must be > 0, got {self.lr}")
+        if not 0 <= self.lr_min <= self.lr:
+            problems.append(f"optim.lr_min must be in [0, lr], got {self.lr_min}")
+        if self.lr_flat_epochs < 0:
+            problems.append(f"optim.lr_flat_epochs must be >= 0, got {self.lr_flat_epochs}")
+        if self.batch_size < 1:
+            problems.append(f"optim.batch_size must be >= 1, got {self.batch_size}")
+        names = ("epochs_semantic", "epochs_offset", "epochs_ds", "num_workers")
+        for name in names + ("swa_epochs", "swa_bn_scans"):
+            if getattr(self, name) < 0:
+                problems.append(f"optim.{name} must be >= 0")
+        if self.val_every < 1:
+            problems.append(f"optim.val_every must be >= 1, got {self.val_every}")
+        if self.freeze_bn and self.swa_epochs > 0:
+            problems.append(
+                "optim.freeze_bn holds the BatchNorm statistics and optim.swa_epochs re-measures "
+                "them: set only one"
+            )
+        return problems
+
+    def lr_at(self, epoch: int, total: int) -> float:
+        """Learning rate of 0-based ``epoch`` in a stage of ``total`` epochs."""
+        if self.lr_schedule is LRSchedule.CONSTANT or epoch < self.lr_flat_epochs:
+            return self.lr
+        span = max(total - self.lr_flat_epochs, 1)
+        frac = min((epoch - self.lr_flat_epochs) / span, 1.0)
+        return self.lr_min + 0.5 * (self.lr - self.lr_min) * (1.0 + math.cos(math.pi * frac))
