@@ -149,6 +149,7 @@ def build_backbone(cfg: DSNetConfig, num_classes: int) -> nn.Module:
         level_ground=m.level_ground,
         shape_features=m.shape_features,
         shape_points=cfg.augment.max_points,
+        norm=m.norm,
     )
 
 

@@ -40,6 +40,8 @@ from panoptic_bench.errors import InputError
 BN_STATS = ("running", "scan")
 #: Values of ``inference.orphans`` (:func:`panoptic_bench.baselines.panoptic.orphans_to_stuff`).
 ORPHANS = ("keep", "stuff")
+#: Values of ``model.norm`` (:mod:`panoptic_bench.dsnet.model.renorm`).
+NORMS = ("batch", "renorm")
 
 
 @dataclass(frozen=True)
@@ -89,6 +91,9 @@ class ModelConfig:
     planarity, scattering, verticality of each point's 0.5 m cube), measured on at most
     ``augment.max_points`` points so that training and inference see the same density; a model
     trained without them initialises one with them (the new inputs start with zero weights).
+    ``norm``: ``batch`` (default) or ``renorm``, Batch Renormalization of every backbone BatchNorm
+    in training (:mod:`panoptic_bench.dsnet.model.renorm`; same weights and inference, so either
+    initialises the other).
     """
 
     variant: NetworkVariant = NetworkVariant.NOMINAL
@@ -100,6 +105,7 @@ class ModelConfig:
     point_feature_dim: int = 256
     voxel_feature_dim: int = 16
     offset_hidden: int = 32
+    norm: str = "batch"
 
     def validate(self) -> list[str]:
         names = ("init_size", "point_feature_dim", "voxel_feature_dim", "offset_hidden")
@@ -110,6 +116,8 @@ class ModelConfig:
             problems.append(f"model.point_hidden must be positive widths, got {self.point_hidden}")
         if self.shape_features and self.variant is NetworkVariant.OFFICIAL:
             problems.append("model.shape_features is not part of the official network")
+        if self.norm not in NORMS:
+            problems.append(f"model.norm must be one of {', '.join(NORMS)}, got {self.norm!r}")
         return problems
 
 

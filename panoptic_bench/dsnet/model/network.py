@@ -25,6 +25,7 @@ from torch import nn
 from panoptic_bench.dsnet.data.shape import N_SHAPE_FEATURES
 from panoptic_bench.dsnet.model.backbone import AsymmetricUNet
 from panoptic_bench.dsnet.model.heads import InstanceHead, SemanticHead
+from panoptic_bench.dsnet.model.renorm import NORMS, renormalise_batchnorms
 from panoptic_bench.dsnet.model.voxelize import (
     N_POINT_FEATURES,
     CylinderGrid,
@@ -108,6 +109,10 @@ class PanopticBackbone(nn.Module):
         :func:`~panoptic_bench.dsnet.model.forward.backbone_forward` computes and appends.
     shape_points : int
         ``max_points`` of those features (the training scans' point count; 0: every point).
+    norm : {"batch", "renorm"}
+        ``renorm``: every BatchNorm trains with Batch Renormalization
+        (:mod:`panoptic_bench.dsnet.model.renorm`); the same parameters and buffers, the same
+        eval-mode outputs.
 
     Both flags are False for the nominal network and True for the official one
     (``model.variant`` of the config, see :func:`panoptic_bench.dsnet.checkpoint.build_backbone`).
@@ -129,8 +134,12 @@ class PanopticBackbone(nn.Module):
         level_ground: bool = False,
         shape_features: bool = False,
         shape_points: int = 0,
+        norm: str = "batch",
     ) -> None:
         super().__init__()
+        if norm not in NORMS:
+            raise ValueError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
+        self.norm = norm
         self.shape_features = bool(shape_features)
         self.shape_points = int(shape_points)
         self.fast_inference = bool(fast_inference)
@@ -150,11 +159,14 @@ class PanopticBackbone(nn.Module):
             init_size if offset_hidden is None else offset_hidden,
             norm_before_act=offset_norm_first,
         )
+        if norm == "renorm":
+            renormalise_batchnorms(self)
 
     def extra_repr(self) -> str:
         extra = "" if self.remission_input else ", remission_input=False"
         extra += ", level_ground=True" if self.level_ground else ""
         extra += ", shape_features=True" if self.shape_features else ""
+        extra += f", norm={self.norm}" if self.norm != "batch" else ""
         return f"num_classes={self.num_classes}, grid_size={self.grid.size}{extra}"
 
     def forward(self, batch: VoxelBatch) -> BackboneOutput:
