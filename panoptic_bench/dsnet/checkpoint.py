@@ -62,6 +62,7 @@ SHIPPED: dict[str, str] = {
     "synthetic-mixed": "dsnet_synthetic_mixed.pt",
     "synthetic-road-gain": "dsnet_synthetic_road_gain.pt",
     "synthetic-full-density": "dsnet_synthetic_full_density.pt",
+    "synthetic-held-bn": "dsnet_synthetic_held_bn.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
