@@ -90,3 +90,9 @@ def test_freeze_bn_and_weight_averaging_exclude_each_other():
         _cfg(freeze_bn="yes")
     assert _cfg(freeze_bn=True).optim.freeze_bn is True
     assert DSNetConfig.from_dict(_cfg(freeze_bn=True).to_dict()).optim.freeze_bn is True
+
+
+def test_a_fresh_network_has_no_statistics_to_hold(world: Path, tmp_path: Path):
+    with pytest.raises(InputError, match="--init"):
+        train(_cfg(freeze_bn=True), world, tmp_path / "fresh", stage="semantic", progress=False)
+    assert not (tmp_path / "fresh" / "checkpoints" / "semantic.pt").exists()

@@ -229,7 +229,13 @@ def run_stage(
     own = load_checkpoint(path) if resume and path.is_file() else None
     if own is not None:
         check_resumable(own.config, ctx.cfg, path)
-    backbone, shift = _build_networks(ctx, stage, own or start_checkpoint(ctx.run_dir, stage, init))
+    start = own or start_checkpoint(ctx.run_dir, stage, init)
+    if start is None and ctx.cfg.optim.freeze_bn and stage != "ds":
+        raise InputError(
+            f"optim.freeze_bn holds the BatchNorm statistics the {stage} stage starts with, and a "
+            "fresh network has none: give --init CHECKPOINT or train the previous stage first"
+        )
+    backbone, shift = _build_networks(ctx, stage, start)
     params = _trainable(stage, backbone, shift, ctx.cfg)
     optimizer = torch.optim.Adam(
         params, lr=ctx.cfg.optim.lr, weight_decay=ctx.cfg.optim.weight_decay
