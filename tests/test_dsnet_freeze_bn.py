@@ -96,3 +96,63 @@ def test_a_fresh_network_has_no_statistics_to_hold(world: Path, tmp_path: Path):
     with pytest.raises(InputError, match="--init"):
         train(_cfg(freeze_bn=True), world, tmp_path / "fresh", stage="semantic", progress=False)
     assert not (tmp_path / "fresh" / "checkpoints" / "semantic.pt").exists()
+
+
+def _stats(backbone: dict) -> dict:
+    return {k: v for k, v in backbone.items() if k.endswith(("running_mean", "running_var"))}
+
+
+def test_statistics_measured_over_the_training_world_are_held(world: Path, tmp_path: Path):
+    from panoptic_bench.dsnet import distributed as ddp
+    from panoptic_bench.dsnet.checkpoint import build_backbone
+    from panoptic_bench.dsnet.model.forward import backbone_forward
+    from panoptic_bench.dsnet.training.averaging import recalibrate_batchnorm
+    from panoptic_bench.dsnet.training.train import _make_context
+
+    train(_cfg(), world, tmp_path / "start", stage="semantic", epochs=1, progress=False)
+    init = tmp_path / "start" / "checkpoints" / "semantic.pt"
+    start = load_checkpoint(init)
+    cfg = _cfg(freeze_bn=True, freeze_bn_from="train")
+    # by hand: the start weights, one cumulative pass over the first epoch's scans in index order
+    ctx = _make_context(cfg, world, tmp_path / "hand", ddp.init_from_env("cpu"), False)
+    net = build_backbone(cfg, start.class_map.num_classes)
+    net.load_state_dict(start.backbone)
+    ctx.train_set.set_epoch(0)
+    scans = [ctx.train_set[i] for i in range(len(ctx.train_set))]
+    recalibrate_batchnorm(net, scans, lambda m, s: backbone_forward(m, [s], ctx.grid, "cpu"))
+    want = _stats(net.state_dict())
+
+    train(cfg, world, tmp_path / "one", stage="semantic", epochs=1, init=init, progress=False)
+    one = load_checkpoint(tmp_path / "one" / "checkpoints" / "semantic.pt")
+    assert one.metrics[0]["bn_scans"] == len(scans)
+    got = _stats(one.backbone)
+    assert any(not torch.equal(want[k], start.backbone[k]) for k in want)  # measured anew
+    for k in want:
+        assert torch.allclose(got[k], want[k], rtol=1e-5, atol=1e-6), k
+    # resumed to a second epoch: held, not measured again, and bit for bit a straight run
+    train(cfg, world, tmp_path / "one", stage="semantic", epochs=2, resume=True, progress=False)
+    train(cfg, world, tmp_path / "two", stage="semantic", epochs=2, init=init, progress=False)
+    resumed = load_checkpoint(tmp_path / "one" / "checkpoints" / "semantic.pt")
+    straight = load_checkpoint(tmp_path / "two" / "checkpoints" / "semantic.pt")
+    for k in got:
+        assert torch.equal(resumed.backbone[k], got[k]), k
+    for k, v in straight.backbone.items():
+        assert torch.equal(resumed.backbone[k], v), k
+    assert "bn_scans" not in resumed.metrics[1]
+
+
+def test_measured_statistics_let_a_fresh_network_hold(world: Path, tmp_path: Path):
+    cfg = _cfg(freeze_bn=True, freeze_bn_from="train")
+    train(cfg, world, tmp_path / "fresh", stage="semantic", epochs=1, progress=False)
+    ck = load_checkpoint(tmp_path / "fresh" / "checkpoints" / "semantic.pt")
+    means = [v for k, v in _stats(ck.backbone).items() if k.endswith("running_mean")]
+    assert any(bool(v.abs().max() > 0) for v in means)  # not the untouched zeros of a new net
+
+
+def test_freeze_bn_from_needs_freeze_bn():
+    with pytest.raises(InputError, match="freeze_bn_from"):
+        _cfg(freeze_bn_from="train")
+    with pytest.raises(InputError, match="freeze_bn_from"):
+        _cfg(freeze_bn=True, freeze_bn_from="world")
+    cfg = _cfg(freeze_bn=True, freeze_bn_from="train")
+    assert DSNetConfig.from_dict(cfg.to_dict()) == cfg

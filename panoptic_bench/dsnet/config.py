@@ -28,6 +28,7 @@ from panoptic_bench.dsnet.config_augment import AugmentConfig  # also re-exporte
 from panoptic_bench.dsnet.config_enums import (  # noqa: F401 - re-exported
     Clusterer,
     DatasetFormat,
+    HeldStatistics,
     LRSchedule,
     NetworkVariant,
     ShiftKernel,

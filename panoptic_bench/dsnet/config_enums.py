@@ -7,7 +7,14 @@ from __future__ import annotations
 
 import enum
 
-__all__ = ["Clusterer", "DatasetFormat", "LRSchedule", "NetworkVariant", "ShiftKernel"]
+__all__ = [
+    "Clusterer",
+    "DatasetFormat",
+    "HeldStatistics",
+    "LRSchedule",
+    "NetworkVariant",
+    "ShiftKernel",
+]
 
 
 class DatasetFormat(enum.Enum):
@@ -53,3 +60,15 @@ class LRSchedule(enum.Enum):
 
     CONSTANT = "constant"
     COSINE = "cosine"
+
+
+class HeldStatistics(enum.Enum):
+    """Which BatchNorm statistics ``optim.freeze_bn`` holds through a stage.
+
+    ``start``: those of the checkpoint the stage starts from (``--init`` or the previous stage);
+    ``train``: measured once at the start of the stage, with the start weights, as the
+    equal-weight mean over every training scan of the stage's first epoch.
+    """
+
+    START = "start"
+    TRAIN = "train"

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from panoptic_bench.dsnet.config_enums import LRSchedule
+from panoptic_bench.dsnet.config_enums import HeldStatistics, LRSchedule
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,9 @@ class OptimConfig:
     backbone normalises with the running statistics it starts the stage with (from ``--init`` or
     the previous stage), in training as at inference, and never updates them
     (:mod:`panoptic_bench.dsnet.training.batchnorm`); it cannot be combined with ``swa_epochs``,
-    which re-measures them.
+    which re-measures them. ``freeze_bn_from`` picks the held statistics: ``start`` (those of the
+    start checkpoint) or ``train`` (measured once at the start of the stage, with the start
+    weights, over every training scan of its first epoch; a fresh network can then hold too).
     """
 
     lr: float = 0.002
@@ -47,6 +49,7 @@ class OptimConfig:
     swa_epochs: int = 0
     swa_bn_scans: int = 0
     freeze_bn: bool = False
+    freeze_bn_from: HeldStatistics = HeldStatistics.START
 
     def validate(self) -> list[str]:
         problems = []
@@ -69,6 +72,8 @@ class OptimConfig:
                 "optim.freeze_bn holds the BatchNorm statistics and optim.swa_epochs re-measures "
                 "them: set only one"
             )
+        if self.freeze_bn_from is not HeldStatistics.START and not self.freeze_bn:
+            problems.append("optim.freeze_bn_from applies only with optim.freeze_bn: true")
         return problems
 
     def lr_at(self, epoch: int, total: int) -> float:

@@ -37,7 +37,7 @@ from panoptic_bench.dsnet.checkpoint import (
     save_checkpoint,
     widen_point_inputs,
 )
-from panoptic_bench.dsnet.config import DSNetConfig, save_config
+from panoptic_bench.dsnet.config import DSNetConfig, HeldStatistics, save_config
 from panoptic_bench.dsnet.data.bank import open_bank
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, open_dataset
 from panoptic_bench.dsnet.data.training_set import TrainingSet
@@ -47,7 +47,10 @@ from panoptic_bench.dsnet.training.averaging import (
     finish_stage_average,
     stage_average,
 )
-from panoptic_bench.dsnet.training.batchnorm import hold_batchnorm_statistics
+from panoptic_bench.dsnet.training.batchnorm import (
+    hold_batchnorm_statistics,
+    measure_held_statistics,
+)
 from panoptic_bench.dsnet.training.metrics_log import write_metrics_csv
 from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
 from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
@@ -230,12 +233,20 @@ def run_stage(
     if own is not None:
         check_resumable(own.config, ctx.cfg, path)
     start = own or start_checkpoint(ctx.run_dir, stage, init)
-    if start is None and ctx.cfg.optim.freeze_bn and stage != "ds":
+    measure = (
+        ctx.cfg.optim.freeze_bn
+        and ctx.cfg.optim.freeze_bn_from is HeldStatistics.TRAIN
+        and stage != "ds"
+        and own is None
+    )
+    if start is None and ctx.cfg.optim.freeze_bn and stage != "ds" and not measure:
         raise InputError(
             f"optim.freeze_bn holds the BatchNorm statistics the {stage} stage starts with, and a "
-            "fresh network has none: give --init CHECKPOINT or train the previous stage first"
+            "fresh network has none: give --init CHECKPOINT, train the previous stage first or "
+            "measure them (optim.freeze_bn_from: train)"
         )
     backbone, shift = _build_networks(ctx, stage, start)
+    measured = measure_held_statistics(backbone, ctx) if measure else None
     params = _trainable(stage, backbone, shift, ctx.cfg)
     optimizer = torch.optim.Adam(
         params, lr=ctx.cfg.optim.lr, weight_decay=ctx.cfg.optim.weight_decay
@@ -257,6 +268,8 @@ def run_stage(
         in_mean = average if epoch >= avg_from else None
         loss = train_one_epoch(stage, model, backbone, shift, optimizer, ctx, epoch, in_mean)
         row = {"stage": stage, "epoch": epoch + 1, "lr": lr, "train_loss": loss}
+        if measured is not None and epoch == start_epoch:
+            row["bn_scans"] = measured  # the held statistics were measured on these scans
         if average is not None and epoch + 1 == total:
             row["swa_steps"] = average.count
             finish_stage_average(average, backbone, ctx, epoch)
