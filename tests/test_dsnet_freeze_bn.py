@@ -13,6 +13,7 @@ from torch import nn
 
 from panoptic_bench.dsnet.checkpoint import load_checkpoint
 from panoptic_bench.dsnet.config import DSNetConfig
+from panoptic_bench.dsnet.training import train as train_mod
 from panoptic_bench.dsnet.training.batchnorm import hold_batchnorm_statistics
 from panoptic_bench.dsnet.training.train import train
 from panoptic_bench.errors import InputError
@@ -156,3 +157,96 @@ def test_freeze_bn_from_needs_freeze_bn():
         _cfg(freeze_bn=True, freeze_bn_from="world")
     cfg = _cfg(freeze_bn=True, freeze_bn_from="train")
     assert DSNetConfig.from_dict(cfg.to_dict()) == cfg
+
+
+def test_restyle_by_hand():
+    from panoptic_bench.dsnet.training.batchnorm import restyle
+
+    x = torch.tensor([[1.0, 10.0], [3.0, 14.0]])
+    mean, std = torch.tensor([2.0, 12.0]), torch.tensor([1.0, 2.0])
+    out = restyle(x, mean, std, torch.tensor([2.0, 0.5]), torch.tensor([0.0, 1.0]))
+    # channel 0: normalised -1, 1 -> -2, 2 -> 0, 4; channel 1: -1, 1 -> 0.5, 1.5 -> 13, 15
+    assert torch.equal(out, torch.tensor([[0.0, 13.0], [4.0, 15.0]]))
+    same = restyle(x, mean, std, torch.ones(2), torch.zeros(2))
+    assert torch.equal(same, x)
+
+
+def test_statistics_noise_restyles_held_batchnorms_only_while_active():
+    from panoptic_bench.dsnet.training.batchnorm import restyle, statistics_noise
+
+    torch.manual_seed(0)
+    net = nn.Sequential(nn.Linear(3, 4), nn.BatchNorm1d(4), nn.ReLU(), nn.BatchNorm1d(4))
+    net.train()
+    hold_batchnorm_statistics(net)
+    net[1].running_mean.uniform_(-1, 1)
+    net[1].running_var.uniform_(0.5, 2)
+    x = torch.randn(32, 3)
+    plain = net(x)
+    with statistics_noise(net, 0.0) as n:
+        assert n == 0
+        assert torch.equal(net(x), plain)
+    with statistics_noise(net, 0.3) as n:
+        assert n == 2
+        state = torch.get_rng_state()
+        noisy = net(x)
+        assert not torch.allclose(noisy, plain)
+        # the same draws by hand: per BatchNorm, one (2, C) normal draw times sigma
+        torch.set_rng_state(state)
+        h = net[0](x)
+        for bn in (net[1], net[3]):
+            a, b = torch.randn(2, 4) * 0.3
+            std = torch.sqrt(bn.running_var + bn.eps)
+            h = bn.forward(restyle(h, bn.running_mean, std, 1 + a, b))
+            if bn is net[1]:
+                h = net[2](h)
+        assert torch.allclose(noisy, h, atol=1e-6)
+        assert net(x).requires_grad
+    assert torch.equal(net(x), plain)  # hooks removed on exit
+    with pytest.raises(RuntimeError), statistics_noise(net, 0.3):
+        raise RuntimeError
+    assert torch.equal(net(x), plain)  # also on error
+
+
+def test_bn_noise_trains_under_restyled_inputs_and_resumes_bit_for_bit(
+    world: Path, tmp_path: Path, monkeypatch
+):
+    train(_cfg(), world, tmp_path / "start", stage="semantic", epochs=1, progress=False)
+    init = tmp_path / "start" / "checkpoints" / "semantic.pt"
+    cfg = _cfg(freeze_bn=True, bn_noise=0.2)
+    hooks_in_validation: list[int] = []
+    real_validate = train_mod._validate
+
+    def validate(stage, backbone, shift, ctx):
+        norms = [m for m in backbone.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+        hooks_in_validation.append(sum(len(m._forward_pre_hooks) for m in norms))
+        return real_validate(stage, backbone, shift, ctx)
+
+    monkeypatch.setattr(train_mod, "_validate", validate)
+    train(cfg, world, tmp_path / "a", stage="semantic", epochs=2, init=init, progress=False)
+    assert hooks_in_validation == [0, 0]  # validation sees the network without noise
+    train(cfg, world, tmp_path / "b", stage="semantic", epochs=1, init=init, progress=False)
+    train(cfg, world, tmp_path / "b", stage="semantic", epochs=2, resume=True, progress=False)
+    train(
+        _cfg(freeze_bn=True),
+        world,
+        tmp_path / "c",
+        stage="semantic",
+        epochs=2,
+        init=init,
+        progress=False,
+    )
+    a, b, c = (load_checkpoint(tmp_path / n / "checkpoints" / "semantic.pt") for n in "abc")
+    for k, v in a.backbone.items():
+        assert torch.equal(b.backbone[k], v), k
+    weights = [k for k in a.backbone if k.endswith("weight")]
+    assert any(not torch.equal(a.backbone[k], c.backbone[k]) for k in weights)  # noise moved it
+    for k in _stats(a.backbone):
+        assert torch.equal(a.backbone[k], c.backbone[k]), k  # still held
+
+
+def test_bn_noise_needs_held_statistics():
+    with pytest.raises(InputError, match="bn_noise"):
+        _cfg(bn_noise=0.1)
+    with pytest.raises(InputError, match="bn_noise"):
+        _cfg(freeze_bn=True, bn_noise=-0.1)
+    assert _cfg(freeze_bn=True, bn_noise=0.15).optim.bn_noise == 0.15

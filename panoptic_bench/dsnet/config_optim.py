@@ -32,6 +32,8 @@ class OptimConfig:
     which re-measures them. ``freeze_bn_from`` picks the held statistics: ``start`` (those of the
     start checkpoint) or ``train`` (measured once at the start of the stage, with the start
     weights, over every training scan of its first epoch; a fresh network can then hold too).
+    ``bn_noise`` = sigma > 0 (needs ``freeze_bn``) restyles every held BatchNorm's input in
+    training by a random per-channel scale 1 + sigma * a and shift sigma * b in held units.
     """
 
     lr: float = 0.002
@@ -50,6 +52,7 @@ class OptimConfig:
     swa_bn_scans: int = 0
     freeze_bn: bool = False
     freeze_bn_from: HeldStatistics = HeldStatistics.START
+    bn_noise: float = 0.0
 
     def validate(self) -> list[str]:
         problems = []
@@ -74,6 +77,10 @@ class OptimConfig:
             )
         if self.freeze_bn_from is not HeldStatistics.START and not self.freeze_bn:
             problems.append("optim.freeze_bn_from applies only with optim.freeze_bn: true")
+        if not 0 <= self.bn_noise <= 1:
+            problems.append(f"optim.bn_noise must be in [0, 1], got {self.bn_noise}")
+        elif self.bn_noise > 0 and not self.freeze_bn:
+            problems.append("optim.bn_noise restyles held BatchNorms: set optim.freeze_bn: true")
         return problems
 
     def lr_at(self, epoch: int, total: int) -> float:

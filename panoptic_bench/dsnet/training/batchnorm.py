@@ -11,10 +11,18 @@ as at inference, and never update them; their affine weight and bias still train
 equal-weight mean over every training scan of the stage's first epoch, measured once with the
 start weights, so the normalisation describes the world being trained on rather than the last
 scans another training happened to see.
+
+``optim.bn_noise`` = sigma > 0 (:func:`statistics_noise`) restyles, in training only, every held
+BatchNorm's input per step: in the units of the held statistics each channel is scaled by
+1 + sigma * a and shifted by sigma * b (a, b standard normal, drawn per channel and step), so the
+network learns under the kind of shift of activation statistics that another domain brings (the
+feature-statistics augmentation of DSU, Li et al., ICLR 2022, with a fixed spread).
 """
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import torch
@@ -39,6 +47,56 @@ def hold_batchnorm_statistics(module: nn.Module) -> int:
             sub.eval()
             held += 1
     return held
+
+
+def restyle(
+    x: torch.Tensor,
+    mean: torch.Tensor,
+    std: torch.Tensor,
+    scale: torch.Tensor,
+    shift: torch.Tensor,
+) -> torch.Tensor:
+    """Scale and shift ``x``'s channels about ``mean`` in units of ``std``.
+
+    Parameters
+    ----------
+    x : (n, C) float tensor
+    mean, std : (C,) float tensors
+        The statistics a BatchNorm normalises with.
+    scale, shift : (C,) float tensors
+
+    Returns
+    -------
+    (n, C) tensor ``mean + (x - mean) * scale + shift * std``: normalised with ``mean`` and
+    ``std`` it is ``x``'s normalised value times ``scale`` plus ``shift``.
+    """
+    return mean + (x - mean) * scale + shift * std
+
+
+@contextlib.contextmanager
+def statistics_noise(module: nn.Module, sigma: float) -> Iterator[int]:
+    """While active, every BatchNorm of ``module`` restyles its input with fresh noise per call.
+
+    Each call draws a, b ~ N(0, 1) per channel from torch's global generator and feeds
+    ``restyle(x, running_mean, sqrt(running_var + eps), 1 + sigma * a, sigma * b)`` to the
+    BatchNorm (meant for held BatchNorms, which normalise with those running statistics).
+    ``sigma`` = 0 registers nothing. Yields the number of BatchNorms restyled; the hooks are
+    removed on exit, also on error.
+    """
+
+    def hook(bn: nn.Module, args: tuple) -> tuple:
+        x = args[0]
+        a, b = torch.randn(2, x.shape[1], dtype=x.dtype, device=x.device) * sigma
+        std = torch.sqrt(bn.running_var + bn.eps)
+        return (restyle(x, bn.running_mean, std, 1 + a, b), *args[1:])
+
+    norms = [m for m in module.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    handles = [m.register_forward_pre_hook(hook) for m in norms] if sigma > 0 else []
+    try:
+        yield len(handles)
+    finally:
+        for h in handles:
+            h.remove()
 
 
 def measure_held_statistics(backbone: nn.Module, ctx: TrainContext, epoch: int = 0) -> int:

@@ -7,6 +7,7 @@ the batch itself comes from :func:`panoptic_bench.dsnet.model.forward.backbone_f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -14,12 +15,17 @@ from torch import nn
 
 from panoptic_bench.dsnet.config import DSNetConfig
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarSample
+from panoptic_bench.dsnet.model.forward import backbone_forward
+
+if TYPE_CHECKING:
+    from panoptic_bench.dsnet.training.train import TrainContext
 
 __all__ = [
     "StageLoss",
     "class_weights_for",
     "ds_stage_loss",
     "stage_loss",
+    "step_loss",
 ]
 
 
@@ -141,3 +147,25 @@ def ds_stage_loss(
             iteration_weights=cfg.loss.ds_iteration_weights,
         )
     return total / max(len(samples), 1)
+
+
+def step_loss(
+    stage: str,
+    model: dict[str, nn.Module | None],
+    samples: list[LidarSample],
+    ctx: TrainContext,
+    weights: torch.Tensor,
+    frozen: bool,
+) -> torch.Tensor:
+    """Loss of one training step of ``stage`` on ``samples`` (``frozen``: a ds stage whose
+    backbone runs without gradients and adds no backbone loss)."""
+    dev = ctx.info.device
+    if stage != "ds":
+        out = backbone_forward(model["backbone"], samples, ctx.grid, dev)
+        return stage_loss(stage, out, samples, ctx.cfg, ctx.class_map, weights).total
+    with torch.set_grad_enabled(not frozen):
+        out = backbone_forward(model["backbone"], samples, ctx.grid, dev)
+    loss = ds_stage_loss(model["shift"], out, samples, ctx.cfg, ctx.class_map)
+    if not frozen:
+        loss = loss + stage_loss("offset", out, samples, ctx.cfg, ctx.class_map, weights).total
+    return loss

@@ -41,7 +41,6 @@ from panoptic_bench.dsnet.config import DSNetConfig, HeldStatistics, save_config
 from panoptic_bench.dsnet.data.bank import open_bank
 from panoptic_bench.dsnet.data.datasets import ClassMap, LidarDataset, open_dataset
 from panoptic_bench.dsnet.data.training_set import TrainingSet
-from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.training.averaging import (
     StepAverage,
     finish_stage_average,
@@ -50,10 +49,14 @@ from panoptic_bench.dsnet.training.averaging import (
 from panoptic_bench.dsnet.training.batchnorm import (
     hold_batchnorm_statistics,
     measure_held_statistics,
+    statistics_noise,
 )
 from panoptic_bench.dsnet.training.metrics_log import write_metrics_csv
 from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
-from panoptic_bench.dsnet.training.steps import class_weights_for, ds_stage_loss, stage_loss
+from panoptic_bench.dsnet.training.steps import (
+    class_weights_for,
+    step_loss,
+)
 from panoptic_bench.errors import InputError
 
 __all__ = ["TrainContext", "train", "run_stage", "train_one_epoch"]
@@ -323,7 +326,8 @@ def train_one_epoch(
 
     frozen = stage == "ds" and ctx.cfg.dynamic_shift.freeze_backbone
     backbone.train(not frozen)
-    if ctx.cfg.optim.freeze_bn and not frozen:
+    held = ctx.cfg.optim.freeze_bn and not frozen
+    if held:
         hold_batchnorm_statistics(backbone)
     if shift is not None:
         shift.train()
@@ -334,31 +338,19 @@ def train_one_epoch(
     weights = torch.tensor(ctx.class_weights, dtype=torch.float32, device=ctx.info.device)
     losses = []
     bar = tqdm(batches, desc=f"{stage} epoch {epoch + 1}", disable=not ctx.progress, leave=False)
-    for idx in bar:
-        samples = [ctx.train_set[i] for i in idx]
-        optimizer.zero_grad(set_to_none=True)
-        loss = _step_loss(stage, model, samples, ctx, weights, frozen)
-        loss.backward()
-        optimizer.step()
-        if average is not None:
-            average.update(backbone)
-        losses.append(float(loss.detach()))
-        bar.set_postfix(loss=f"{losses[-1]:.3f}")
+    with statistics_noise(backbone, ctx.cfg.optim.bn_noise if held else 0.0):
+        for idx in bar:
+            samples = [ctx.train_set[i] for i in idx]
+            optimizer.zero_grad(set_to_none=True)
+            loss = step_loss(stage, model, samples, ctx, weights, frozen)
+            loss.backward()
+            optimizer.step()
+            if average is not None:
+                average.update(backbone)
+            losses.append(float(loss.detach()))
+            bar.set_postfix(loss=f"{losses[-1]:.3f}")
     mean = float(np.mean(losses)) if losses else 0.0
     return ddp.mean_scalar(mean, len(losses), ctx.info)
-
-
-def _step_loss(stage, model, samples, ctx: TrainContext, weights, frozen: bool) -> torch.Tensor:
-    dev = ctx.info.device
-    if stage != "ds":
-        out = backbone_forward(model["backbone"], samples, ctx.grid, dev)
-        return stage_loss(stage, out, samples, ctx.cfg, ctx.class_map, weights).total
-    with torch.set_grad_enabled(not frozen):
-        out = backbone_forward(model["backbone"], samples, ctx.grid, dev)
-    loss = ds_stage_loss(model["shift"], out, samples, ctx.cfg, ctx.class_map)
-    if not frozen:
-        loss = loss + stage_loss("offset", out, samples, ctx.cfg, ctx.class_map, weights).total
-    return loss
 
 
 def _validate(stage: str, backbone: nn.Module, shift: nn.Module | None, ctx: TrainContext) -> dict:
