@@ -54,6 +54,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     imp.add_argument("--print-map", action="store_true", help="print the key mapping")
     imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     imp.set_defaults(func=import_handler)
+    gap = sub.add_parser(
+        "bn-gap",
+        help="how far one dataset's activation statistics sit from another's (per BatchNorm)",
+        description="Run the checkpoint's backbone on --scans evenly spaced scans of each root and "
+        "compare, for every BatchNorm, the per-channel statistics of its input in units of the "
+        "checkpoint's running statistics: offset of OTHER's channel means from DATA's, DATA's "
+        "scan-to-scan spread of them, their ratio, and |log| of the channel spreads' ratio "
+        "(medians over channels). Writes gap.csv and gap.png under --out.",
+    )
+    gap.add_argument("checkpoint", help="a .pt file or a shipped short name")
+    gap.add_argument("--data", required=True, help="reference root, e.g. the training world")
+    gap.add_argument("--other", required=True, help="root compared with it, e.g. real scans")
+    gap.add_argument(
+        "--split", default="train", help="split or sequences (00,01) of both roots (train)"
+    )
+    gap.add_argument("--scans", type=int, default=30, help="scans of each root (default 30)")
+    gap.add_argument("--out", required=True, help="output directory")
+    gap.add_argument("--overwrite", action="store_true", help="replace files in --out")
+    gap.add_argument("--threads", type=int, default=0, help="torch CPU threads (default torch's)")
+    gap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    gap.set_defaults(func=gap_handler)
 
 
 def show_handler(args: argparse.Namespace) -> int:
@@ -122,4 +143,50 @@ def import_handler(args: argparse.Namespace) -> int:
         f"{out}: official step {res.step} -> stage {'semantic offset ds'.split()[res.step - 1]}, "
         f"{len(res.rows)} tensors ({Path(out).stat().st_size / 1e6:.1f} MB)"
     )
+    return 0
+
+
+def gap_handler(args: argparse.Namespace) -> int:
+    import torch
+    from tqdm import tqdm
+
+    from panoptic_bench.dsnet import statistics_gap as sg
+    from panoptic_bench.dsnet.checkpoint import (
+        build_backbone,
+        build_grid,
+        load_checkpoint,
+        resolve_checkpoint,
+    )
+    from panoptic_bench.dsnet.inference.run import check_fits, open_split
+    from panoptic_bench.errors import InputError
+    from panoptic_bench.io import check_output_dir
+
+    if args.scans < 2:
+        raise InputError(f"--scans must be >= 2 (a spread needs two scans), got {args.scans}")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    src = resolve_checkpoint(args.checkpoint)
+    check_output_dir(args.out, overwrite=args.overwrite, inputs=(src, args.data, args.other))
+    ck = load_checkpoint(src)
+    net = build_backbone(ck.config, ck.class_map.num_classes)
+    net.load_state_dict(ck.backbone)
+    grid = build_grid(ck.config)
+    stats = []
+    for root in (args.data, args.other):
+        check_fits(ck, root)
+        ds = open_split(ck.config, root, args.split)
+        if len(ds) < 2:
+            raise InputError(f"{len(ds)} scans in split {args.split!r}; need at least 2", root)
+        picks = sg.evenly_spaced(len(ds), args.scans)
+        bar = tqdm(picks, desc=str(root), disable=args.no_progress, leave=False)
+        stats.append(sg.held_unit_statistics(net, (ds.load(i) for i in bar), grid))
+    rows = sg.layer_gaps(*stats)
+    title = f"{src.name}: {args.other} against {args.data}"
+    for path in sg.write_gap_files(rows, args.out, title):
+        print(path)
+    for r in rows:
+        print(
+            f"{r['layer']:48s} offset {r['offset']:.3f}  spread {r['spread']:.3f}  "
+            f"ratio {r['ratio']:.2f}  |log std| {r['log_std']:.3f}"
+        )
     return 0
