@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from panoptic_bench import cli_args as ca
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -69,10 +71,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     gap.add_argument(
         "--split", default="train", help="split or sequences (00,01) of both roots (train)"
     )
-    gap.add_argument("--scans", type=int, default=30, help="scans of each root (default 30)")
+    gap.add_argument(
+        "--scans", type=ca.int_range(2), default=30, help="scans of each root (>= 2, default 30)"
+    )
     gap.add_argument("--out", required=True, help="output directory")
     gap.add_argument("--overwrite", action="store_true", help="replace files in --out")
-    gap.add_argument("--threads", type=int, default=0, help="torch CPU threads (default torch's)")
+    gap.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
     gap.add_argument("--no-progress", action="store_true", help="no progress bars")
     gap.set_defaults(func=gap_handler)
 
@@ -161,8 +165,6 @@ def gap_handler(args: argparse.Namespace) -> int:
     from panoptic_bench.errors import InputError
     from panoptic_bench.io import check_output_dir
 
-    if args.scans < 2:
-        raise InputError(f"--scans must be >= 2 (a spread needs two scans), got {args.scans}")
     if args.threads:
         torch.set_num_threads(args.threads)
     src = resolve_checkpoint(args.checkpoint)
