@@ -16,6 +16,7 @@ EVAL_TARGETS: list[str] = [
     "eval_nuscenes",
     "eval_compare",
     "eval_confusions",
+    "eval_breakdown",
 ]
 
 
