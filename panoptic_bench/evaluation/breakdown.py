@@ -20,6 +20,7 @@ from panoptic_bench.errors import InputError
 from panoptic_bench.evaluation import workers as workers_module
 from panoptic_bench.evaluation.semantickitti import checked_train_ids, require_predictions
 from panoptic_bench.metrics.breakdown import BinnedCounts, check_edges
+from panoptic_bench.metrics.by_range import point_range
 from panoptic_bench.metrics.point_features import DEFAULT_EDGES, FEATURES, point_feature
 
 __all__ = ["Breakdown", "breakdown_semantickitti", "breakdown_table", "write_breakdown"]
@@ -110,10 +111,10 @@ def breakdown_semantickitti(
             pred_path = sk.prediction_path(predictions, ref)
             pred = checked_train_ids(sk.read_labels(pred_path), n, pred_path, "prediction")
             keep = gt == t
+            r = point_range(points) if within is not None or feature == "range" else None
             if within is not None:
-                r = point_feature("range", points)
                 keep &= (r >= within[0]) & (r < within[1])
-            values = point_feature(feature, points, gt == road)
+            values = r if feature == "range" else point_feature(feature, points, gt == road)
             total = total + BinnedCounts.of_scan(values[keep], pred[keep], edges, C)
             bar.update()
     finally:

@@ -2,7 +2,8 @@
 
 Pure functions of the points (and, for the road plane, of a mask of road points):
 
-- ``range``: distance from the sensor (m), as ``eval semantickitti --by-range`` bins it.
+- ``range``: distance from the sensor (m), :func:`~panoptic_bench.metrics.by_range.point_range`, as
+  ``eval semantickitti --by-range`` bins it.
 - ``height``: height above the scan's road plane (m), a least-squares plane ``z = a + b x + c y``
   fitted to the true road points less than ``plane_range`` metres away horizontally.
 - ``roughness``: ``|z - (z_prev + z_next) / 2|`` (m) over the point's neighbours in recording
@@ -16,6 +17,8 @@ A point without a value (no neighbours close enough, too few road points for the
 from __future__ import annotations
 
 import numpy as np
+
+from panoptic_bench.metrics.by_range import point_range
 
 __all__ = ["FEATURES", "DEFAULT_EDGES", "height_above_plane", "point_feature", "ring_roughness"]
 
@@ -98,8 +101,7 @@ def point_feature(name: str, points: np.ndarray, road: np.ndarray | None = None)
     """
     p = np.asarray(points)
     if name == "range":
-        xyz = p[:, :3].astype(np.float64)
-        return np.sqrt(np.einsum("ij,ij->i", xyz, xyz))
+        return point_range(p)
     if name == "height":
         if road is None:
             raise ValueError("height needs the road points")
