@@ -121,7 +121,11 @@ class WorldProfile:
     - street furniture: ``lamp_keep``: share of the lamp poles that are built (the draws are made
       for every one, so the rest of the street is unchanged); ``lamp_signs``: probability that a
       lamp pole carries a traffic-sign plate (real lamp posts often do), drawn from its own stream;
-      ``lamp_sign_half``: (low, high) half side (m) of those square plates.
+      ``lamp_sign_half``: (low, high) half side (m) of those square plates; ``sign_posts``: mean
+      spacing (m, 0 = none) per side of low sign posts beside the kerb (one or two plates,
+      :mod:`~panoptic_bench.datasets.synthetic.signs`), own stream; ``sign_post_z``: (low, high)
+      height (m) of the lowest plate's centre above the kerb; ``sign_post_half``: (low, high)
+      half width (m) of their plates.
     """
 
     name: str = "classic"
@@ -199,6 +203,9 @@ class WorldProfile:
     lamp_keep: float = 1.0
     lamp_signs: float = 0.0
     lamp_sign_half: tuple[float, float] = (0.32, 0.32)
+    sign_posts: float = 0.0
+    sign_post_z: tuple[float, float] = (1.5, 2.3)
+    sign_post_half: tuple[float, float] = (0.25, 0.45)
 
     def __post_init__(self) -> None:
         problems = []
@@ -219,6 +226,9 @@ class WorldProfile:
             "fence_height": 0.2 <= self.fence_height[0] and self.fence_height[1] <= 4.0,
             "lot_raise": _optional(self.lot_raise, 2, 0.0, 1.0),
             "lamp_sign_half": 0.05 <= self.lamp_sign_half[0] and self.lamp_sign_half[1] <= 1.5,
+            "sign_posts": self.sign_posts == 0.0 or self.sign_posts >= 5.0,
+            "sign_post_z": 0.3 <= self.sign_post_z[0] and self.sign_post_z[1] <= 6.0,
+            "sign_post_half": 0.05 <= self.sign_post_half[0] and self.sign_post_half[1] <= 1.5,
             "rem_zero_below": 0.0 <= self.rem_zero_below < 1.0,
             "rem_dark_other": _optional(self.rem_dark_other, 1, 0.0, 1.0),
             "rem_gain_people": 0.0 < self.rem_gain_people <= 10.0,

@@ -79,6 +79,10 @@ MEASURES: dict[str, tuple[str, str]] = {
     "road_far_right_pct": ("layout: % road among the ground 6-12 m to the right", "mean"),
     "road_far_left_pct": ("layout: % road among the ground 6-12 m to the left", "mean"),
     "fence_h": ("content: fence height above the road, median of its points 3-20 m (m)", "median"),
+    "sign_h": (
+        "content: traffic-sign height above the road, median of its points 3-20 m (m) (session 41)",
+        "median",
+    ),
     "veg_low_pct": (
         "content: % of the vegetation points 3-20 m away under 0.5 m above the road plane (session 33)",
         "mean",

@@ -5,7 +5,7 @@ markings, parking strips in some segments, raised sidewalks with kerbs, and behi
 frontage chosen per segment (building facades, green areas with terrain, bushes and trees,
 fences, paved plazas of other-ground), with a second row of buildings further back, and
 optionally side streets cut through it (:mod:`.side_streets`). Lamp poles,
-traffic signs on poles and street trees stand on the sidewalks. The returned
+traffic signs on poles (low sign posts too, :mod:`.signs`) and street trees stand on the sidewalks. The returned
 :class:`StreetPlan` says where things may be placed (parking strips, sidewalks, lanes).
 """
 
@@ -36,6 +36,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
 )
 from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER, Primitives
 from panoptic_bench.datasets.synthetic.side_streets import open_side_street
+from panoptic_bench.datasets.synthetic.signs import sign_posts
 
 __all__ = ["StreetPlan", "build_street", "curb_at", "kerb_at"]
 
@@ -386,4 +387,6 @@ def build_street(
     _furniture(b, rng, plan, x0, x1)
     if profile.clutter_spacing:
         _clutter(b, rng, plan, x0, x1)
+    if profile.sign_posts:  # its own stream, spawned after every other one
+        sign_posts(b, rng.spawn(1)[0], plan, x0, x1)
     return b.primitives(), gm, plan
