@@ -115,14 +115,21 @@ def tree(
     y: float,
     z: float,
     trunk_height: tuple[float, float] = (2.0, 3.5),
+    trunk_radius: tuple[float, float] = (0.12, 0.25),
+    crown_lift: float = 0.7,
 ) -> None:
-    """A tree standing at ``(x, y, z)``: a trunk (cylinder) and a crown (ellipsoid) on it."""
+    """A tree standing at ``(x, y, z)``: a trunk (cylinder) and a crown (ellipsoid) on it.
+
+    The crown's centre sits ``crown_lift`` of its vertical half axis above the trunk's top (0.7:
+    the crown hangs 0.3 of it below the top and hides it; 1: it rests on the top). The random
+    draws are the same for any ``trunk_height``, ``trunk_radius`` and ``crown_lift``.
+    """
     trunk_h = rng.uniform(*trunk_height)
-    r = rng.uniform(0.12, 0.25)
+    r = rng.uniform(*trunk_radius)
     b.add(CYLINDER, (x, y, z + trunk_h / 2), (r, r, trunk_h / 2), TRUNK, rng.uniform(0.25, 0.4))
     rc = rng.uniform(1.4, 3.2)
     rz = rc * rng.uniform(0.8, 1.3)
-    center = (x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z + trunk_h + 0.7 * rz)
+    center = (x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z + trunk_h + crown_lift * rz)
     b.add(ELLIPSOID, center, (rc, rc * rng.uniform(0.8, 1.2), rz), VEGETATION, 0.45, rough=0.25)
 
 

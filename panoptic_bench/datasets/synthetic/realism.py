@@ -32,7 +32,7 @@ Conventions (the same estimator runs on real and synthetic scans, so only the co
 - **fence see-through**: the share of fence points under 30 m whose previous or next point in
   recording order (the neighbouring column of the same ring) is more than 1 m farther (the laser
   passing through a lattice or mesh to what stands behind), each neighbour counted once;
-- heights of sidewalk, terrain, fence and traffic-sign are median residuals of their points 3-20 m away from that
+- heights of sidewalk, terrain, fence, traffic-sign and trunk are median residuals of their points 3-20 m away from that
   plane; the ego hole is the minimum horizontal range of ground points (road, parking, sidewalk, other-ground,
   terrain) in each of 8 azimuth sectors (45 degrees,
   sector 0 centred on +x, counter-clockwise).
@@ -57,6 +57,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     SIDEWALK,
     SIGN,
     TERRAIN,
+    TRUNK,
     VEGETATION,
 )
 from panoptic_bench.datasets.synthetic.realism_labels import MEASURES
@@ -241,7 +242,7 @@ def scan_measures(
     nan = float("nan")
     m.update(road_z=nan, pitch_deg=nan, roll_deg=nan, road_rough_cm=nan)
     m.update(sidewalk_h=nan, terrain_h=nan, fence_h=nan, other_ground_h=nan, veg_low_pct=nan)
-    m["sign_h"] = nan
+    m["sign_h"] = m["trunk_h"] = nan
     if coef is not None:
         a, b, c = coef
         m.update(
@@ -257,6 +258,7 @@ def scan_measures(
         m["terrain_h"] = median(resid[near & (raw == TERRAIN)])
         m["fence_h"] = median(resid[near & (raw == FENCE)])
         m["sign_h"] = median(resid[near & (raw == SIGN)])
+        m["trunk_h"] = median(resid[near & (raw == TRUNK)])
         m["other_ground_h"] = median(resid[near & (raw == OTHER_GROUND)])
         m["veg_low_pct"] = pct(resid[near & (raw == VEGETATION)] < 0.5)
     m["fence_through_pct"] = _see_through(r, raw == FENCE)

@@ -83,6 +83,10 @@ MEASURES: dict[str, tuple[str, str]] = {
         "content: traffic-sign height above the road, median of its points 3-20 m (m) (session 41)",
         "median",
     ),
+    "trunk_h": (
+        "content: trunk height above the road, median of its points 3-20 m (m) (session 41)",
+        "median",
+    ),
     "veg_low_pct": (
         "content: % of the vegetation points 3-20 m away under 0.5 m above the road plane (session 33)",
         "mean",

@@ -247,7 +247,7 @@ def _segment(
         length = x1 - x0
         for _ in range(rng.poisson(length / prof.tree_spacing)):
             xt, yt = rng.uniform(x0, x1), side * rng.uniform(y_front + 2.5, back - 2.0)
-            tree(b, rng, xt, yt, z, prof.trunk_height)
+            tree(b, rng, xt, yt, z, prof.trunk_height, prof.trunk_radius, prof.crown_lift)
         for _ in range(rng.poisson(length / prof.bush_spacing)):
             bush(b, rng, rng.uniform(x0, x1), side * rng.uniform(y_front + 1.5, back - 1.0), z)
     plan.yards.append((side, x0, x1, y_front, back, z))
@@ -326,7 +326,8 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
                 xt = x + rng.uniform(2.0, 6.0)
                 while xt < min(x + seg, x1):
                     zt = kerb_at(plan, side, xt)
-                    tree(b, rng, xt, side * (y_curb_at(xt) + 0.55), zt, plan.profile.trunk_height)
+                    yt = side * (y_curb_at(xt) + 0.55)
+                    tree(b, rng, xt, yt, zt, prof.trunk_height, prof.trunk_radius, prof.crown_lift)
                     xt += rng.uniform(7.0, 12.0)
             x += seg
 
