@@ -1,4 +1,4 @@
-"""Low sign posts beside the kerbs (world key ``sign_posts``) and the sign height row (issue 13, session 41)."""
+"""Low sign posts beside the kerbs (world key ``sign_posts``) and the sign / trunk height rows (issue 13, session 41)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
-from panoptic_bench.datasets.synthetic.raw_ids import POLE, SIGN
+from panoptic_bench.datasets.synthetic.raw_ids import POLE, SIGN, TRUNK
 from panoptic_bench.datasets.synthetic.shapes import BOX, CYLINDER
 from panoptic_bench.errors import InputError
 
@@ -89,19 +89,20 @@ def test_sign_post_values_out_of_range():
             WorldProfile(**bad)
 
 
-def test_sign_height_row_by_hand():
-    """A road plane at -1.75 m and a sign plate 10 m ahead whose points lie 1.5 m above it."""
+@pytest.mark.parametrize(("raw_id", "key"), [(SIGN, "sign_h"), (TRUNK, "trunk_h")])
+def test_height_rows_by_hand(raw_id, key):
+    """A road plane at -1.75 m and 63 points 10 m ahead whose heights above it are 1.3-1.7 m."""
     from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
 
     xs, ys = np.meshgrid(np.arange(3.0, 20.0, 0.25), np.arange(-8.0, 8.0, 0.25))
     road = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, -1.75)])
     zs, yp = np.meshgrid(np.linspace(-0.45, -0.05, 9), np.linspace(2.0, 2.6, 7))
-    plate = np.column_stack([np.full(zs.size, 10.0), yp.ravel(), zs.ravel()])
-    pts = np.vstack([road, plate])
+    thing = np.column_stack([np.full(zs.size, 10.0), yp.ravel(), zs.ravel()])
+    pts = np.vstack([road, thing])
     pts = np.column_stack([pts, np.full(len(pts), 0.3)]).astype(np.float32)
-    raw = np.concatenate([np.full(len(road), 40), np.full(len(plate), SIGN)]).astype(np.uint32)
+    raw = np.concatenate([np.full(len(road), 40), np.full(len(thing), raw_id)]).astype(np.uint32)
     m, _ = scan_measures(pts, raw)
-    assert "sign_h" in MEASURES
-    assert m["sign_h"] == pytest.approx(1.5, abs=0.01)
+    assert key in MEASURES
+    assert m[key] == pytest.approx(1.5, abs=0.01)
     m, _ = scan_measures(pts[: len(road)], raw[: len(road)])
-    assert np.isnan(m["sign_h"])  # no sign in the scan: no value
+    assert np.isnan(m[key])  # none in the scan: no value

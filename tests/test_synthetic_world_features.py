@@ -83,17 +83,11 @@ def test_raised_verges_stand_higher_and_carry_what_stands_on_them():
         WorldProfile.from_dict({"verge_raise": [0.5, 0.2]})
 
 
-def test_trunk_height_lowers_crowns_and_changes_nothing_else():
-    """trunk_height: the same draws, so only tree trunks and the crowns on them move."""
+def _only_trees_moved(a, ga, pa, b, gb, pb):
+    """Assert that streets ``a`` and ``b`` differ in their trees only; their trunk and crown masks."""
     from panoptic_bench.datasets.synthetic.raw_ids import TRUNK, VEGETATION
-    from panoptic_bench.datasets.synthetic.street import build_street
 
-    def street(**kw):
-        prof = dataclasses.replace(REALISTIC, **kw)
-        return build_street(np.random.default_rng(5), (-60.0, 60.0), prof)
-
-    (a, ga, pa), (b, gb, pb) = street(), street(trunk_height=(1.0, 2.0))
-    np.testing.assert_array_equal(a.label, b.label)
+    np.testing.assert_array_equal(a.label, b.label)  # the same draws: the same primitives
     np.testing.assert_array_equal(ga.label, gb.label)
     assert pa.curb == pb.curb and pa.kerb == pb.kerb
     trunk = a.label == TRUNK
@@ -103,6 +97,19 @@ def test_trunk_height_lowers_crowns_and_changes_nothing_else():
     same = ~(trunk | crown)
     np.testing.assert_array_equal(a.center[same], b.center[same])
     np.testing.assert_array_equal(a.half[same], b.half[same])
+    return trunk, crown
+
+
+def test_trunk_height_lowers_crowns_and_changes_nothing_else():
+    """trunk_height: the same draws, so only tree trunks and the crowns on them move."""
+    from panoptic_bench.datasets.synthetic.street import build_street
+
+    def street(**kw):
+        prof = dataclasses.replace(REALISTIC, **kw)
+        return build_street(np.random.default_rng(5), (-60.0, 60.0), prof)
+
+    (a, ga, pa), (b, gb, pb) = street(), street(trunk_height=(1.0, 2.0))
+    trunk, crown = _only_trees_moved(a, ga, pa, b, gb, pb)
     # bare trunk = 2 x half height, in the profile's range; crowns come down by the same amount
     assert np.all((2 * a.half[trunk, 2] >= 2.0 - 1e-9) & (2 * a.half[trunk, 2] <= 3.5 + 1e-9))
     assert np.all((2 * b.half[trunk, 2] >= 1.0 - 1e-9) & (2 * b.half[trunk, 2] <= 2.0 + 1e-9))
@@ -263,3 +270,30 @@ def test_park_buses_hand_worked():
     assert [t.category for t in none] == ["car"] * 5
     short = park_buses(np.random.default_rng(1), cars, [(-1, 0.0, 10.0), (-1, 10.0, 45.0)], 1.0)
     assert short[0].category == "car"  # a bus may not leave its strip
+
+
+def test_trunk_radius_and_crown_lift_move_only_the_trees():
+    """trunk_radius, crown_lift (session 41): the same draws; trunk radii and crown heights move."""
+    from panoptic_bench.datasets.synthetic.street import build_street
+
+    def street(**kw):
+        prof = dataclasses.replace(REALISTIC, **kw)
+        return build_street(np.random.default_rng(8), (-60.0, 60.0), prof)
+
+    (a, ga, pa), (b, gb, pb) = street(), street(trunk_radius=(0.05, 0.1), crown_lift=1.0)
+    trunk, crown = _only_trees_moved(a, ga, pa, b, gb, pb)
+    np.testing.assert_array_equal(a.half[trunk, 2], b.half[trunk, 2])  # heights and places kept
+    np.testing.assert_array_equal(a.center[trunk], b.center[trunk])
+    assert np.all((a.half[trunk, 0] >= 0.12) & (a.half[trunk, 0] <= 0.25))
+    assert np.all((b.half[trunk, 0] >= 0.05) & (b.half[trunk, 0] <= 0.1))
+    # the crown's centre: 0.7 (default) / 1.0 of its vertical half axis above the trunk's top
+    top = a.center[trunk, 2] + a.half[trunk, 2]
+    np.testing.assert_allclose(a.center[crown, 2] - top, 0.7 * a.half[crown, 2], atol=1e-9)
+    np.testing.assert_allclose(b.center[crown, 2] - top, 1.0 * b.half[crown, 2], atol=1e-9)
+    np.testing.assert_array_equal(a.half[crown], b.half[crown])
+    assert REALISTIC.crown_lift == CLASSIC.crown_lift == 0.7
+    assert REALISTIC.trunk_radius == CLASSIC.trunk_radius == (0.12, 0.25)
+    for bad in ({"trunk_radius": [0.01, 0.2]}, {"trunk_radius": [0.3, 0.2]},
+                {"trunk_radius": [0.1, 1.5]}, {"crown_lift": -0.1}, {"crown_lift": 2.5}):  # fmt: skip
+        with pytest.raises(InputError, match=next(iter(bad))):
+            WorldProfile.from_dict(bad)

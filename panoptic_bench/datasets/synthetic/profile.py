@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from panoptic_bench.datasets.synthetic.profile_values import coerce as _coerce
+from panoptic_bench.datasets.synthetic.profile_values import optional as _optional
 from panoptic_bench.errors import InputError
 
 __all__ = ["CLASSIC", "PROFILES", "REALISTIC", "WorldProfile"]
@@ -313,32 +315,6 @@ class WorldProfile:
             if err.path is not None or source is None:
                 raise
             raise InputError(err.message, source) from None
-
-
-def _optional(values: tuple[float, ...], n: int, lo: float, hi: float) -> bool:
-    """True when ``values`` is empty or ``n`` numbers in ``[lo, hi]``."""
-    return len(values) in (0, n) and all(lo <= v <= hi for v in values)
-
-
-def _coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:
-    if typing.get_origin(hint) is tuple:
-        args = typing.get_args(hint)
-        if not isinstance(value, list | tuple):
-            raise InputError(f"world profile key {key!r} must be a list, got {value!r}", source)
-        if not (len(args) == 2 and args[1] is Ellipsis) and len(value) != len(args):
-            raise InputError(f"world profile key {key!r} needs {len(args)} numbers", source)
-        return tuple(_coerce(float, v, key, source) for v in value)
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise InputError(f"world profile key {key!r} must be true or false", source)
-        return value
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(f"world profile key {key!r} must be a number, got {value!r}", source)
-        return float(value)
-    if not isinstance(value, str):
-        raise InputError(f"world profile key {key!r} must be a string, got {value!r}", source)
-    return value
 
 
 #: Keys that are probabilities or fractions in [0, 1].
