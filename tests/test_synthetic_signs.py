@@ -106,3 +106,93 @@ def test_height_rows_by_hand(raw_id, key):
     assert m[key] == pytest.approx(1.5, abs=0.01)
     m, _ = scan_measures(pts[: len(road)], raw[: len(road)])
     assert np.isnan(m[key])  # none in the scan: no value
+
+
+def _post_rows(street, n0):
+    """(plates, post) row indices of each post after the first ``n0`` rows."""
+    label = street.label
+    out, start = [], n0
+    for p in np.flatnonzero(label[n0:] == POLE) + n0:
+        out.append((np.arange(start, p), p))
+        start = p + 1
+    return out
+
+
+def test_two_sided_plates_keep_the_posts_and_split_each_plate():
+    """``sign_back_reflect``: each post plate becomes a front and a back half-plate back to back."""
+    from panoptic_bench.datasets.synthetic.signs import PLATE_HALF_T, PLATE_REFLECT
+
+    kw = {"sign_posts": 15.0, "sign_post_half": (0.3, 0.5)}
+    a, _, _ = _street(seed=9, **kw)
+    b, _, _ = _street(seed=9, sign_back_reflect=0.5, **kw)
+    base, _, _ = _street(seed=9)
+    n0 = len(base.label)
+    np.testing.assert_array_equal(_rows(b)[:n0], _rows(a)[:n0])
+    pa, pb = _post_rows(a, n0), _post_rows(b, n0)
+    assert len(pa) == len(pb) > 5
+    fronts_up = 0
+    for (plates_a, post_a), (plates_b, post_b) in zip(pa, pb):
+        # the posts stand where they stood; two half-plates for each plate
+        np.testing.assert_array_equal(b.center[post_b], a.center[post_a])
+        np.testing.assert_array_equal(b.half[post_b], a.half[post_a])
+        assert len(plates_b) == 2 * len(plates_a)
+        for k, pa_row in enumerate(plates_a):
+            front, back = plates_b[2 * k], plates_b[2 * k + 1]
+            assert b.reflect[front] == pytest.approx(PLATE_REFLECT)
+            assert b.reflect[back] == pytest.approx(0.5)
+            yaw = a.yaw[pa_row]
+            normal = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+            for row in (front, back):
+                assert b.yaw[row] == yaw and b.label[row] == SIGN and b.kind[row] == BOX
+                np.testing.assert_allclose(b.half[row], [PLATE_HALF_T / 2, *a.half[pa_row, 1:]])
+            # back to back about the plate's centre, along its normal
+            np.testing.assert_allclose((b.center[front] + b.center[back]) / 2, a.center[pa_row])
+            off = (b.center[front] - a.center[pa_row]) @ normal
+            assert abs(off) == pytest.approx(PLATE_HALF_T / 2)
+            fronts_up += off > 0
+    n_plates = sum(len(p) for p, _ in pa)
+    assert 0 < fronts_up < n_plates  # fronts face either way
+
+
+def test_bright_fronts_share_and_geometry():
+    """``sign_bright`` alone: one-sided plates where they were, a share of them retro-reflective."""
+    from panoptic_bench.datasets.synthetic.signs import BRIGHT_REFLECT, PLATE_REFLECT
+
+    kw = {"x_range": (-1000.0, 1000.0), "sign_posts": 20.0}
+    n0 = len(_street(seed=4, x_range=kw["x_range"])[0].label)
+    a, _, _ = _street(seed=4, **kw)
+    b, _, _ = _street(seed=4, sign_bright=0.3, **kw)
+    np.testing.assert_array_equal(np.delete(_rows(b), 9, axis=1), np.delete(_rows(a), 9, axis=1))
+    np.testing.assert_array_equal(b.reflect[:n0], a.reflect[:n0])  # lamp plates unchanged
+    plates = np.flatnonzero(a.label[n0:] == SIGN) + n0
+    assert np.all(a.reflect[plates] == np.float32(PLATE_REFLECT))
+    bright = b.reflect[plates] == np.float32(BRIGHT_REFLECT)
+    assert np.all(bright | (b.reflect[plates] == np.float32(PLATE_REFLECT)))
+    n, k = plates.size, int(bright.sum())
+    assert n > 100 and abs(k - 0.3 * n) < 4 * np.sqrt(n * 0.3 * 0.7)
+    c, _, _ = _street(seed=4, sign_bright=1.0, **kw)
+    assert np.all(c.reflect[plates] == np.float32(BRIGHT_REFLECT))
+
+
+def test_plate_face_values_out_of_range():
+    for bad in ({"sign_back_reflect": -0.1}, {"sign_back_reflect": 3.0}, {"sign_bright": 1.5}):
+        key = next(iter(bad))
+        with pytest.raises(InputError, match=key):
+            WorldProfile(**bad)
+
+
+def test_sign_and_pole_remission_rows_by_hand():
+    """20 sign points 10 m ahead, 5 of them brighter than 0.8; 8 pole points, 2 of them 0."""
+    from panoptic_bench.datasets.synthetic.realism import scan_measures
+
+    sign = np.column_stack([np.full(20, 10.0), np.linspace(2, 3, 20), np.full(20, 0.5)])
+    pole = np.column_stack([np.full(8, 12.0), np.full(8, -3.0), np.linspace(-1, 1, 8)])
+    far = np.array([[30.0, 0.0, 0.0]])  # outside 3-20 m: not counted
+    pts = np.vstack([sign, pole, far])
+    rem = np.concatenate([[0.9] * 5 + [0.75] + [0.3] * 14, [0.0, 0.0] + [0.2] * 6, [0.95]])
+    raw = np.concatenate([np.full(20, SIGN), np.full(8, POLE), [SIGN]]).astype(np.uint32)
+    m, _ = scan_measures(np.column_stack([pts, rem]).astype(np.float32), raw)
+    assert m["rem_sign_bright_pct"] == pytest.approx(25.0)
+    assert m["rem_pole_zero_pct"] == pytest.approx(25.0)
+    m, _ = scan_measures(np.column_stack([pole, rem[20:28]]).astype(np.float32), raw[20:28])
+    assert np.isnan(m["rem_sign_bright_pct"])

@@ -130,7 +130,8 @@ class WorldProfile:
       spacing (m, 0 = none) per side of low sign posts beside the kerb (one or two plates,
       :mod:`~panoptic_bench.datasets.synthetic.signs`), own stream; ``sign_post_z``: (low, high)
       height (m) of the lowest plate's centre above the kerb; ``sign_post_half``: (low, high)
-      half width (m) of their plates.
+      half width (m) of their plates; ``sign_back_reflect`` (0 = one-sided plates): back
+      reflectivity of two-sided post plates; ``sign_bright``: share of retro-reflective fronts.
     """
 
     name: str = "classic"
@@ -213,6 +214,8 @@ class WorldProfile:
     sign_posts: float = 0.0
     sign_post_z: tuple[float, float] = (1.5, 2.3)
     sign_post_half: tuple[float, float] = (0.25, 0.45)
+    sign_back_reflect: float = 0.0
+    sign_bright: float = 0.0
 
     def __post_init__(self) -> None:
         problems = []
@@ -236,6 +239,8 @@ class WorldProfile:
             "sign_posts": self.sign_posts == 0.0 or self.sign_posts >= 5.0,
             "sign_post_z": 0.3 <= self.sign_post_z[0] and self.sign_post_z[1] <= 6.0,
             "sign_post_half": 0.05 <= self.sign_post_half[0] and self.sign_post_half[1] <= 1.5,
+            "sign_back_reflect": 0.0 <= self.sign_back_reflect <= 2.0,
+            "sign_bright": 0.0 <= self.sign_bright <= 1.0,
             "rem_zero_below": 0.0 <= self.rem_zero_below < 1.0,
             "rem_dark_other": _optional(self.rem_dark_other, 1, 0.0, 1.0),
             "rem_gain_people": 0.0 < self.rem_gain_people <= 10.0,

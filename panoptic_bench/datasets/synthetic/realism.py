@@ -219,6 +219,8 @@ def scan_measures(
         "rem_people_median": median(rem[np.isin(raw, PEOPLE) & near]),
         "rem_pole_median": median(rem[(raw == POLE) & near]),
         "rem_sign_median": median(rem[(raw == SIGN) & near]),
+        "rem_sign_bright_pct": pct(rem[(raw == SIGN) & near] > 0.8),
+        "rem_pole_zero_pct": pct(rem[(raw == POLE) & near] == 0),
         "rem_road_lt5": median(rem[road & (r < 5)]),
         "rem_road_20_40": median(rem[road & (r >= 20) & (r < 40)]),
         "rem_road_gt40": median(rem[road & (r >= 40)]),

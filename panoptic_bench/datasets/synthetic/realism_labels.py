@@ -33,6 +33,11 @@ MEASURES: dict[str, tuple[str, str]] = {
     "rem_people_median": ("remission: person, cyclist, bicycle median (3-20 m)", "median"),
     "rem_pole_median": ("remission: pole median (3-20 m)", "median"),
     "rem_sign_median": ("remission: traffic-sign median (3-20 m)", "median"),
+    "rem_sign_bright_pct": (
+        "remission: % of traffic-sign points above 0.8 (3-20 m, session 42)",
+        "mean",
+    ),
+    "rem_pole_zero_pct": ("remission: % of pole points exactly 0 (3-20 m, session 42)", "mean"),
     "rem_road_lt5": ("remission: road median under 5 m", "median"),
     "rem_road_20_40": ("remission: road median at 20-40 m", "median"),
     "rem_road_gt40": ("remission: road median beyond 40 m", "median"),
