@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from synthetic_street_checks import WORLDS, profile_changes
 
 from panoptic_bench.datasets.synthetic.profile import REALISTIC, WorldProfile
 from panoptic_bench.datasets.synthetic.raw_ids import POLE, SIGN, TRUNK
@@ -196,3 +197,9 @@ def test_sign_and_pole_remission_rows_by_hand():
     assert m["rem_pole_zero_pct"] == pytest.approx(25.0)
     m, _ = scan_measures(np.column_stack([pole, rem[20:28]]).astype(np.float32), raw[20:28])
     assert np.isnan(m["rem_sign_bright_pct"])
+
+
+@pytest.mark.parametrize("world", WORLDS)
+def test_row_58_files_are_row_56_worlds_plus_plate_faces(world):
+    changed = profile_changes(f"synth_faces_{world}", f"synth_boards_{world}")
+    assert changed == {"sign_back_reflect": 0.5, "sign_bright": 0.25}

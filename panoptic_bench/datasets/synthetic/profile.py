@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from panoptic_bench.datasets.synthetic.profile_values import coerce as _coerce
+from panoptic_bench.datasets.synthetic.profile_values import near_upper_ok as _near_upper_ok
 from panoptic_bench.datasets.synthetic.profile_values import optional as _optional
 from panoptic_bench.errors import InputError
 
@@ -59,7 +60,10 @@ class WorldProfile:
       vegetation; ``terrain_reflect``: range of a terrain patch's reflectivity; ``veg_rough``:
       factor on the ray penetration depth of vegetation (crowns 0.25 m, bushes and hedges
       0.12 m mean; same draws, so 1 keeps every world bit for bit); ``rem_grazing``: (terrain,
-      sidewalk + parking) cosine c of the cutoff ``1 / (1 + (c / cos)^8)`` (empty: 0.06 for all).
+      sidewalk + parking) cosine c of the cutoff ``1 / (1 + (c / cos)^8)`` (empty: 0.06 for all);
+      ``rem_near_upper``: (r0, k, z), empty = off: the beams of the upper block (elevation above
+      -8.1 degrees) return dimmer near the sensor, remission x ``f = 1 / (1 + (r0 / range)^k)``,
+      and exactly 0 with probability ``z (1 - f)`` (real HDL-64E scans, session 42).
 
     Ground and world:
 
@@ -159,6 +163,7 @@ class WorldProfile:
     rem_gain_vegetation: float = 1.0
     veg_rough: float = 1.0
     rem_grazing: tuple[float, ...] = ()
+    rem_near_upper: tuple[float, ...] = ()
     terrain_reflect: tuple[float, float] = (0.3, 0.5)
     ground_rough: float = 0.0
     ground_rough_corr: float = 0.0
@@ -250,6 +255,7 @@ class WorldProfile:
             "rem_gain_vegetation": 0.0 < self.rem_gain_vegetation <= 10.0,
             "veg_rough": 0.0 <= self.veg_rough <= 5.0,
             "rem_grazing": _optional(self.rem_grazing, 2, 0.0, 0.3),
+            "rem_near_upper": _near_upper_ok(self.rem_near_upper),
             "terrain_reflect": 0.0 <= self.terrain_reflect[0] and self.terrain_reflect[1] <= 1.0,
             "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
@@ -337,7 +343,7 @@ _SENSOR_KEYS = (
     "max_range", "range_noise", "physical_remission", "rem_incidence_exp", "rem_range_m",
     "rem_spread", "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below",
     "rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign", "rem_stuff_spread",
-    "rem_gain_vegetation", "veg_rough", "rem_grazing", "ground_rough", "ground_rough_corr",
+    "rem_gain_vegetation", "veg_rough", "rem_grazing", "rem_near_upper", "ground_rough", "ground_rough_corr",
     "ground_wave", "camber",
 )  # fmt: skip
 

@@ -12,12 +12,23 @@ from typing import Any
 
 from panoptic_bench.errors import InputError
 
-__all__ = ["coerce", "optional"]
+__all__ = ["coerce", "near_upper_ok", "optional"]
 
 
 def optional(values: tuple[float, ...], n: int, lo: float, hi: float) -> bool:
     """True when ``values`` is empty or ``n`` numbers in ``[lo, hi]``."""
     return len(values) in (0, n) and all(lo <= v <= hi for v in values)
+
+
+def near_upper_ok(values: tuple[float, ...]) -> bool:
+    """True when ``values`` is empty or ``(r0, k, z)`` with r0 in [0.5, 20] m, k in [0.5, 10],
+    z in [0, 1] (``rem_near_upper``)."""
+    if len(values) == 0:
+        return True
+    if len(values) != 3:
+        return False
+    r0, k, z = values
+    return 0.5 <= r0 <= 20.0 and 0.5 <= k <= 10.0 and 0.0 <= z <= 1.0
 
 
 def coerce(hint: Any, value: Any, key: str, source: str | Path | None) -> Any:

@@ -264,7 +264,7 @@ def scan_measures(
         m["other_ground_h"] = median(resid[near & (raw == OTHER_GROUND)])
         m["veg_low_pct"] = pct(resid[near & (raw == VEGETATION)] < 0.5)
     m["fence_through_pct"] = _see_through(r, raw == FENCE)
-    m.update(material_measures(rem, raw, r))
+    m.update(material_measures(rem, raw, r, z))
     m["verge_terrain_pct"] = beside_road_terrain(x, y, r, raw)
     m["road_right"], m["road_left"] = road_edges(x, y, raw)
     m["road_far_right_pct"], m["road_far_left_pct"] = road_far(x, y, raw)

@@ -8,7 +8,9 @@ and 3-4 times as often 0 (per-primitive material draws), which teaches a model t
 little about sidewalk against terrain; these rows measure it (``synth stats``). Session 31 adds the
 road (0.29, spread 7 %) and the order of the three ground classes at 3-15 m: in 98 % of the real
 scans that hold all three, road is darker than sidewalk and sidewalk darker than terrain; row 30's
-worlds kept that order in 50 % of their scans.
+worlds kept that order in 50 % of their scans. Session 42 adds the upper block's near returns:
+real stuff points 4-8 m away seen by the beams above -8.1 degrees are dim (median 0.24-0.29,
+10-22 % exactly 0) where the lower block's are not.
 """
 
 from __future__ import annotations
@@ -19,8 +21,12 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
     BUILDING,
     FENCE,
     OTHER_GROUND,
+    OTHER_OBJECT,
+    OTHER_STRUCTURE,
+    POLE,
     ROAD,
     SIDEWALK,
+    SIGN,
     TERRAIN,
     TRUNK,
     VEGETATION,
@@ -39,6 +45,10 @@ MATERIAL_CLASSES = (
 )
 #: Stuff surfaces whose exact-zero share is measured.
 STUFF = (SIDEWALK, OTHER_GROUND, BUILDING, FENCE, VEGETATION, TRUNK, TERRAIN)
+#: Upright stuff of the upper block's near rows.
+UPRIGHT = (BUILDING, FENCE, VEGETATION, TRUNK, POLE, SIGN, OTHER_STRUCTURE, OTHER_OBJECT)
+#: Elevation (degrees, from the sensor) above which a point counts as an upper-block return.
+UPPER_DEG = -8.1
 #: Fewest points of a class in 3-15 m for a scan's median to count.
 MIN_POINTS = 200
 
@@ -65,10 +75,20 @@ MATERIAL_MEASURES: dict[str, tuple[str, str]] = {
         "vegetation, trunk, terrain)",
         "mean",
     ),
+    "rem_upper_near_median": (
+        "remission: upright stuff 4-8 m away above -8.1 degrees (upper block) median (session 42)",
+        "median",
+    ),
+    "rem_upper_near_zero_pct": (
+        "remission: % of upright stuff points 4-8 m away above -8.1 degrees exactly 0 (session 42)",
+        "mean",
+    ),
 }
 
 
-def material_measures(rem: np.ndarray, raw: np.ndarray, r: np.ndarray) -> dict[str, float]:
+def material_measures(
+    rem: np.ndarray, raw: np.ndarray, r: np.ndarray, z: np.ndarray | None = None
+) -> dict[str, float]:
     """Per-scan values of :data:`MATERIAL_MEASURES`.
 
     Parameters
@@ -79,6 +99,8 @@ def material_measures(rem: np.ndarray, raw: np.ndarray, r: np.ndarray) -> dict[s
         Raw SemanticKITTI label ids.
     r : ndarray of shape (N,), float64
         Horizontal range from the sensor (m).
+    z : ndarray of shape (N,), float64, optional
+        Height above the sensor (m); without it the upper-block rows are ``nan``.
 
     Returns
     -------
@@ -86,8 +108,10 @@ def material_measures(rem: np.ndarray, raw: np.ndarray, r: np.ndarray) -> dict[s
         ``rem_<class>_median`` and ``rem_<class>_cv`` (both the scan's median; the spread is taken
         over scans by :func:`realism.aggregate`), ``rem_ground_order_pct`` (100 where the road,
         sidewalk and terrain medians rise strictly in that order, 0 where they do not, ``nan``
-        where one of them is missing), ``rem_stuff_zero_pct``; ``nan`` where a class has fewer
-        than :data:`MIN_POINTS` points.
+        where one of them is missing), ``rem_stuff_zero_pct``, ``rem_upper_near_median`` /
+        ``rem_upper_near_zero_pct`` (:data:`UPRIGHT` points 4-8 m away whose elevation is above
+        :data:`UPPER_DEG`); ``nan`` where a class (or those points) has fewer than
+        :data:`MIN_POINTS` points.
     """
     near = (r >= 3) & (r < 15)
     m: dict[str, float] = {}
@@ -105,4 +129,11 @@ def material_measures(rem: np.ndarray, raw: np.ndarray, r: np.ndarray) -> dict[s
     m["rem_stuff_zero_pct"] = (
         100.0 * float(np.mean(rem[stuff] == 0)) if stuff.sum() >= MIN_POINTS else float("nan")
     )
+    upper = np.zeros(rem.size, bool)
+    if z is not None:
+        upper = (r >= 4) & (r < 8) & (np.degrees(np.arctan2(z, r)) > UPPER_DEG)
+    sel = upper & np.isin(raw, UPRIGHT)
+    enough = sel.sum() >= MIN_POINTS
+    m["rem_upper_near_median"] = float(np.median(rem[sel])) if enough else float("nan")
+    m["rem_upper_near_zero_pct"] = 100.0 * float(np.mean(rem[sel] == 0)) if enough else float("nan")
     return m
