@@ -7,7 +7,8 @@ smooth roughness field of the ground (drawn last, so the other draws do not depe
 tilted beam grid (real HDL-64E elevations when asked), hides rays that hit the ego vehicle,
 moves ground returns onto the rough, cambered, undulating ground, records remission with range
 and incidence falloff (quantised to 0.01, exactly 0 below the detection floor: far road, dark
-paint, glass, grazing angles) and applies dropout, thinner low rings and the range cap.
+paint, glass, grazing angles; with ``rem_near_upper`` the upper block's near returns dimmed) and
+applies dropout, thinner low rings and the range cap.
 """
 
 from __future__ import annotations
