@@ -193,6 +193,10 @@ TRAINED_ON = {
         "trained on the synthetic worlds only (lowered kerbs, remission in the real order, every"
         " point, BatchNorm statistics held at the pre-trained model's)"
     ),
+    "dsnet_synthetic_sign_boards.pt": (
+        "trained on the synthetic worlds only (as dsnet_synthetic_held_bn.pt, with low sign posts"
+        " carrying plates of the real size)"
+    ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
     "dsnet_semantickitti_cpu.pt": (
         "trained on real scans of sequences 00-07, 09, 10 + rare instances pasted from synthetic streets"
