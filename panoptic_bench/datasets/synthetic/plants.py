@@ -24,6 +24,7 @@ from panoptic_bench.datasets.synthetic.raw_ids import TERRAIN, TRUNK, VEGETATION
 from panoptic_bench.datasets.synthetic.shapes import CYLINDER, ELLIPSOID
 
 __all__ = [
+    "DISCARD",
     "BED_ROUGH",
     "BED_WIDTH",
     "SHRUB_HALF",
@@ -31,6 +32,7 @@ __all__ = [
     "bush",
     "plant_shrubs",
     "planting_bed",
+    "stream_apart",
     "tree",
 ]
 
@@ -108,6 +110,24 @@ def planting_bed(builder, ground, rng: np.random.Generator, x0, x1, y_back, side
     return w
 
 
+class Discard:
+    """A builder that keeps nothing: a thing drawn but not built leaves every draw in place."""
+
+    def add(self, *args, **kwargs) -> None:
+        pass
+
+
+DISCARD = Discard()
+
+
+def stream_apart(rng: np.random.Generator, key: int) -> np.random.Generator:
+    """A stream derived from ``rng``'s seed at a fixed spawn key, without advancing its spawns."""
+    seq = rng.bit_generator.seed_seq
+    return np.random.default_rng(
+        np.random.SeedSequence(seq.entropy, spawn_key=(*seq.spawn_key, key))
+    )
+
+
 def tree(
     b,
     rng: np.random.Generator,
@@ -117,19 +137,26 @@ def tree(
     trunk_height: tuple[float, float] = (2.0, 3.5),
     trunk_radius: tuple[float, float] = (0.12, 0.25),
     crown_lift: float = 0.7,
+    min_bottom: float = 0.0,
 ) -> None:
     """A tree standing at ``(x, y, z)``: a trunk (cylinder) and a crown (ellipsoid) on it.
 
     The crown's centre sits ``crown_lift`` of its vertical half axis above the trunk's top (0.7:
-    the crown hangs 0.3 of it below the top and hides it; 1: it rests on the top). The random
-    draws are the same for any ``trunk_height``, ``trunk_radius`` and ``crown_lift``.
+    the crown hangs 0.3 of it below the top and hides it; 1: it rests on the top). A crown whose
+    lowest point would be less than ``min_bottom`` (m, 0 = off) above ``z`` is raised to it, its trunk
+    lengthened by the same amount (clearance over a carriageway). The random draws are the same
+    for any ``trunk_height``, ``trunk_radius``, ``crown_lift`` and ``min_bottom``.
     """
     trunk_h = rng.uniform(*trunk_height)
     r = rng.uniform(*trunk_radius)
-    b.add(CYLINDER, (x, y, z + trunk_h / 2), (r, r, trunk_h / 2), TRUNK, rng.uniform(0.25, 0.4))
+    bark = rng.uniform(0.25, 0.4)
     rc = rng.uniform(1.4, 3.2)
     rz = rc * rng.uniform(0.8, 1.3)
-    center = (x + rng.normal(0, 0.2), y + rng.normal(0, 0.2), z + trunk_h + crown_lift * rz)
+    cx, cy = x + rng.normal(0, 0.2), y + rng.normal(0, 0.2)
+    if min_bottom > 0.0:
+        trunk_h += max(0.0, min_bottom - (trunk_h + (crown_lift - 1.0) * rz))
+    b.add(CYLINDER, (x, y, z + trunk_h / 2), (r, r, trunk_h / 2), TRUNK, bark)
+    center = (cx, cy, z + trunk_h + crown_lift * rz)
     b.add(ELLIPSOID, center, (rc, rc * rng.uniform(0.8, 1.2), rz), VEGETATION, 0.45, rough=0.25)
 
 

@@ -126,7 +126,10 @@ class WorldProfile:
       lower range gives crowns that hang over the trunk; the same random draws for any range);
       ``trunk_radius``: (low, high) trunk radius (m); ``crown_lift``: height of a crown's centre
       above the trunk's top, in crown half heights (0.7: it hangs over the top; 1: it rests on it);
-      the same draws for any value of either;
+      the same draws for any value of either; ``kerb_crown_clearance``: lowest height (m, 0 = off)
+      of the crowns of the trees beside the kerb, which hang over the carriageway (a lower crown
+      is raised on a longer trunk; the same draws); ``kerb_tree_keep``: share of those trees
+      built (all drawn; which ones from an own stream);
     - street furniture: ``lamp_keep``: share of the lamp poles that are built (the draws are made
       for every one, so the rest of the street is unchanged); ``lamp_signs``: probability that a
       lamp pole carries a traffic-sign plate (real lamp posts often do), drawn from its own stream;
@@ -213,6 +216,8 @@ class WorldProfile:
     trunk_height: tuple[float, float] = (2.0, 3.5)
     trunk_radius: tuple[float, float] = (0.12, 0.25)
     crown_lift: float = 0.7
+    kerb_crown_clearance: float = 0.0
+    kerb_tree_keep: float = 1.0
     lamp_keep: float = 1.0
     lamp_signs: float = 0.0
     lamp_sign_half: tuple[float, float] = (0.32, 0.32)
@@ -268,6 +273,8 @@ class WorldProfile:
             "trunk_height": 0.2 <= self.trunk_height[0] and self.trunk_height[1] <= 6.0,
             "trunk_radius": 0.03 <= self.trunk_radius[0] and self.trunk_radius[1] <= 1.0,
             "crown_lift": 0.0 <= self.crown_lift <= 2.0,
+            "kerb_crown_clearance": 0.0 <= self.kerb_crown_clearance <= 8.0,
+            "kerb_tree_keep": 0.0 <= self.kerb_tree_keep <= 1.0,
             "clutter_spacing": self.clutter_spacing >= 0,
             "lane_width": self.lane_width[0] >= 2.0,
             "sidewalk": self.sidewalk[0] >= 0.5,
