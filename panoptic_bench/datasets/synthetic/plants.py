@@ -143,9 +143,9 @@ def tree(
 
     The crown's centre sits ``crown_lift`` of its vertical half axis above the trunk's top (0.7:
     the crown hangs 0.3 of it below the top and hides it; 1: it rests on the top). A crown whose
-    lowest point would be less than ``min_bottom`` (m, 0 = off) above ``z`` is raised to it, its trunk
-    lengthened by the same amount (clearance over a carriageway). The random draws are the same
-    for any ``trunk_height``, ``trunk_radius``, ``crown_lift`` and ``min_bottom``.
+    lowest point would be less than ``min_bottom`` (m, 0 = off) above ``z`` is raised to it, its
+    trunk lengthened by the same amount (clearance over a carriageway). The random draws are the
+    same for any ``trunk_height``, ``trunk_radius``, ``crown_lift`` and ``min_bottom``.
     """
     trunk_h = rng.uniform(*trunk_height)
     r = rng.uniform(*trunk_radius)
