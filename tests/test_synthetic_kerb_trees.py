@@ -121,3 +121,26 @@ def test_kerb_tree_values_out_of_range():
 def test_row_60_files_are_row_56_worlds_plus_kerb_tree_keys(world):
     changed = profile_changes(f"synth_clear_{world}", f"synth_boards_{world}")
     assert changed == {"kerb_crown_clearance": 2.5, "kerb_tree_keep": 0.15}
+
+
+def test_overhang_rows_by_hand():
+    """Flat road at -1.75 m; 3-6 m away 30 upright points, 12 of them vegetation; 5 of those overhang."""
+    from panoptic_bench.datasets.synthetic.raw_ids import BUILDING, ROAD
+    from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
+
+    xs, ys = np.meshgrid(np.arange(-15.0, 15.0, 0.25), np.arange(-3.0, 3.0, 0.25))
+    road = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, -1.75)])
+    over = [(4.0 + 0.2 * k, 1.0, -1.75 + 1.5) for k in range(5)]  # 4-4.8 m, |y| 1, 1.5 m up
+    side = [(3.0 + 0.2 * k, 3.6, -1.75 + 1.5) for k in range(7)]  # |y| 3.6: not over the road
+    wall = [(5.0, -1.0 + 0.1 * k, -1.75 + 1.0) for k in range(18)]  # building, 5 m ahead
+    far = [(7.0, 0.5, -1.75 + 2.0)] * 4  # vegetation 7 m away: overhang only
+    low = [(4.5, 5.0, -1.75 + 0.2)] * 6  # under 0.45 m: neither row
+    xyz = np.vstack([road, over, side, wall, far, low])
+    raw = np.r_[
+        np.full(len(road), ROAD), np.full(12, VEGETATION), np.full(18, BUILDING),
+        np.full(4, VEGETATION), np.full(6, VEGETATION),
+    ].astype(np.uint32)  # fmt: skip
+    m, _ = scan_measures(np.column_stack([xyz, np.full(len(xyz), 0.3)]).astype(np.float32), raw)
+    assert {"veg_overhang", "near_veg_pct"} <= set(MEASURES)
+    assert m["veg_overhang"] == 9.0
+    assert m["near_veg_pct"] == pytest.approx(100.0 * 12 / 30)

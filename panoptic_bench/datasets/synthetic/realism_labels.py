@@ -96,6 +96,16 @@ MEASURES: dict[str, tuple[str, str]] = {
         "content: % of the vegetation points 3-20 m away under 0.5 m above the road plane (session 33)",
         "mean",
     ),
+    "veg_overhang": (
+        "content: vegetation points a scan 3-8 m away, within 3.5 m of the sensor's axis, 1-2.5 m "
+        "above the road plane (crowns over the carriageway; session 43)",
+        "mean",
+    ),
+    "near_veg_pct": (
+        "content: % vegetation among the points 3-6 m away over 0.45 m above the road plane "
+        "(session 43)",
+        "mean",
+    ),
     "fence_through_pct": (
         "content: % of fence points whose ring neighbour is > 1 m farther",
         "mean",
