@@ -124,9 +124,10 @@ def test_row_60_files_are_row_56_worlds_plus_kerb_tree_keys(world):
 
 
 def test_overhang_rows_by_hand():
-    """Flat road at -1.75 m; 3-6 m away 30 upright points, 12 of them vegetation; 5 of those overhang."""
-    from panoptic_bench.datasets.synthetic.raw_ids import BUILDING, ROAD
+    """Flat road at -1.75 m; 3-6 m away 30 upright points: 12 vegetation (5 overhang), 12 building, 6 car."""
+    from panoptic_bench.datasets.synthetic.raw_ids import BUILDING, CAR, MOVING_CAR, ROAD
     from panoptic_bench.datasets.synthetic.realism import MEASURES, scan_measures
+    from panoptic_bench.datasets.synthetic.realism_layout import NEAR_CLASSES
 
     xs, ys = np.meshgrid(np.arange(-15.0, 15.0, 0.25), np.arange(-3.0, 3.0, 0.25))
     road = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, -1.75)])
@@ -137,10 +138,14 @@ def test_overhang_rows_by_hand():
     low = [(4.5, 5.0, -1.75 + 0.2)] * 6  # under 0.45 m: neither row
     xyz = np.vstack([road, over, side, wall, far, low])
     raw = np.r_[
-        np.full(len(road), ROAD), np.full(12, VEGETATION), np.full(18, BUILDING),
-        np.full(4, VEGETATION), np.full(6, VEGETATION),
+        np.full(len(road), ROAD), np.full(12, VEGETATION), np.full(12, BUILDING), np.full(3, CAR),
+        np.full(3, MOVING_CAR), np.full(4, VEGETATION), np.full(6, VEGETATION),
     ].astype(np.uint32)  # fmt: skip
     m, _ = scan_measures(np.column_stack([xyz, np.full(len(xyz), 0.3)]).astype(np.float32), raw)
-    assert {"veg_overhang", "near_veg_pct"} <= set(MEASURES)
+    keys = {f"near_{key}_pct" for key, _ in NEAR_CLASSES}
+    assert keys | {"veg_overhang"} <= set(MEASURES) and len(keys) == 5
     assert m["veg_overhang"] == 9.0
     assert m["near_veg_pct"] == pytest.approx(100.0 * 12 / 30)
+    assert m["near_building_pct"] == pytest.approx(100.0 * 12 / 30)
+    assert m["near_car_pct"] == pytest.approx(100.0 * 6 / 30)  # parked and moving cars
+    assert m["near_fence_pct"] == 0.0 and m["near_trunk_pct"] == 0.0

@@ -63,8 +63,10 @@ from panoptic_bench.datasets.synthetic.raw_ids import (
 from panoptic_bench.datasets.synthetic.realism_labels import MEASURES
 from panoptic_bench.datasets.synthetic.realism_layout import (
     GROUND,
+    NEAR_CLASSES,
     beside_road_terrain,
     median,
+    near_field,
     pct,
     road_edges,
     road_far,
@@ -244,7 +246,8 @@ def scan_measures(
     nan = float("nan")
     m.update(road_z=nan, pitch_deg=nan, roll_deg=nan, road_rough_cm=nan)
     m.update(sidewalk_h=nan, terrain_h=nan, fence_h=nan, other_ground_h=nan, veg_low_pct=nan)
-    m.update(veg_overhang=nan, near_veg_pct=nan)
+    m["veg_overhang"] = nan
+    m.update({f"near_{key}_pct": nan for key, _ in NEAR_CLASSES})
     m["sign_h"] = m["trunk_h"] = nan
     if coef is not None:
         a, b, c = coef
@@ -266,7 +269,7 @@ def scan_measures(
         m["veg_low_pct"] = pct(resid[near & (raw == VEGETATION)] < 0.5)
         beside = (r >= 3) & (r < 8) & (np.abs(y) < 3.5) & (resid >= 1.0) & (resid < 2.5)
         m["veg_overhang"] = float(np.sum(beside & (raw == VEGETATION)))
-        m["near_veg_pct"] = pct(raw[(r >= 3) & (r < 6) & (resid > 0.45)] == VEGETATION)
+        m.update(near_field(r, resid, raw))
     m["fence_through_pct"] = _see_through(r, raw == FENCE)
     m.update(material_measures(rem, raw, r, z))
     m["verge_terrain_pct"] = beside_road_terrain(x, y, r, raw)

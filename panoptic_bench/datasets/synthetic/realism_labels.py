@@ -101,11 +101,20 @@ MEASURES: dict[str, tuple[str, str]] = {
         "above the road plane (crowns over the carriageway; session 43)",
         "mean",
     ),
-    "near_veg_pct": (
-        "content: % vegetation among the points 3-6 m away over 0.45 m above the road plane "
-        "(session 43)",
-        "mean",
-    ),
+    **{
+        f"near_{key}_pct": (
+            f"content: % {name} among the points 3-6 m away over 0.45 m above the road plane "
+            "(what stands beside the sensor; session 43)",
+            "mean",
+        )
+        for key, name in (
+            ("veg", "vegetation"),
+            ("fence", "fence"),
+            ("building", "building"),
+            ("car", "car"),
+            ("trunk", "trunk"),
+        )
+    },
     "fence_through_pct": (
         "content: % of fence points whose ring neighbour is > 1 m farther",
         "mean",

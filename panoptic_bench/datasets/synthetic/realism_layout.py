@@ -9,12 +9,26 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from panoptic_bench.datasets.synthetic.raw_ids import OTHER_GROUND, PARKING, ROAD, SIDEWALK, TERRAIN
+from panoptic_bench.datasets.synthetic.raw_ids import (
+    BUILDING,
+    CAR,
+    FENCE,
+    MOVING_CAR,
+    OTHER_GROUND,
+    PARKING,
+    ROAD,
+    SIDEWALK,
+    TERRAIN,
+    TRUNK,
+    VEGETATION,
+)
 
 __all__ = [
     "GROUND",
+    "NEAR_CLASSES",
     "beside_road_terrain",
     "median",
+    "near_field",
     "pct",
     "road_edges",
     "road_far",
@@ -23,6 +37,16 @@ __all__ = [
 
 #: Raw ids of the ground classes.
 GROUND = (ROAD, PARKING, SIDEWALK, OTHER_GROUND, TERRAIN)
+
+
+#: Classes whose share of the upright returns 3-6 m away is a ``synth stats`` row (session 43).
+NEAR_CLASSES = (
+    ("veg", (VEGETATION,)),
+    ("fence", (FENCE,)),
+    ("building", (BUILDING,)),
+    ("car", (CAR, MOVING_CAR)),
+    ("trunk", (TRUNK,)),
+)
 
 
 def median(v: np.ndarray) -> float:
@@ -106,3 +130,13 @@ def terrain_step(
         return float("nan"), float("nan")
     step = z[ter][near] - z[road][idx[near]]
     return median(step), pct(np.abs(step) < flush)
+
+
+def near_field(r: np.ndarray, height: np.ndarray, raw: np.ndarray) -> dict[str, float]:
+    """What stands beside the sensor: ``near_<key>_pct`` for each of :data:`NEAR_CLASSES`.
+
+    The % of each class among the points 3-6 m away (``r``, horizontal range, m) more than
+    0.45 m above the road plane (``height``, m); ``nan`` where there are no such points.
+    """
+    sel = raw[(r >= 3) & (r < 6) & (height > 0.45)]
+    return {f"near_{key}_pct": pct(np.isin(sel, ids)) for key, ids in NEAR_CLASSES}
