@@ -149,3 +149,8 @@ def test_overhang_rows_by_hand():
     assert m["near_building_pct"] == pytest.approx(100.0 * 12 / 30)
     assert m["near_car_pct"] == pytest.approx(100.0 * 6 / 30)  # parked and moving cars
     assert m["near_fence_pct"] == 0.0 and m["near_trunk_pct"] == 0.0
+
+
+@pytest.mark.parametrize("world", WORLDS)
+def test_row_61_files_are_row_56_worlds_without_kerb_trees(world):
+    assert profile_changes(f"synth_nokerb_{world}", f"synth_boards_{world}") == {"kerb_tree_keep": 0.0}
