@@ -127,9 +127,8 @@ class WorldProfile:
       ``trunk_radius``: (low, high) trunk radius (m); ``crown_lift``: height of a crown's centre
       above the trunk's top, in crown half heights (0.7: it hangs over the top; 1: it rests on it);
       the same draws for any value of either; ``kerb_crown_clearance``: lowest height (m, 0 = off)
-      of the crowns of the trees beside the kerb, which hang over the carriageway (a lower crown
-      is raised on a longer trunk; the same draws); ``kerb_tree_keep``: share of those trees
-      built (all drawn; which ones from an own stream);
+      of the kerb trees' crowns (a lower one is raised on a longer trunk, the same draws);
+      ``kerb_tree_keep``: share of the kerb trees built (all drawn; which from an own stream);
     - street furniture: ``lamp_keep``: share of the lamp poles that are built (the draws are made
       for every one, so the rest of the street is unchanged); ``lamp_signs``: probability that a
       lamp pole carries a traffic-sign plate (real lamp posts often do), drawn from its own stream;

@@ -15,18 +15,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from panoptic_bench.datasets.synthetic import plants
 from panoptic_bench.datasets.synthetic.fences import build_fence, build_guard_rail
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.lots import raised_lot
 from panoptic_bench.datasets.synthetic.paint import ROAD_TEXTURE, dark_patches, markings
-from panoptic_bench.datasets.synthetic.plants import (
-    DISCARD,
-    bush,
-    plant_shrubs,
-    planting_bed,
-    stream_apart,
-    tree,
-)
+from panoptic_bench.datasets.synthetic.plants import bush, plant_shrubs, planting_bed, tree
 from panoptic_bench.datasets.synthetic.profile import CLASSIC, WorldProfile
 from panoptic_bench.datasets.synthetic.raw_ids import (
     BUILDING,
@@ -301,7 +295,7 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
     # which lamp poles stand and which carry a sign: their own stream (after the verges and strips)
     lamp_rng = rng.spawn(1)[0] if prof.lamp_signs or prof.lamp_keep < 1.0 else None
     # which kerb trees stand: a stream apart from every spawn, so nothing else moves
-    tree_rng = stream_apart(rng, 0x7EE) if prof.kerb_tree_keep < 1.0 else None
+    tree_rng = plants.stream_apart(rng, 0x7EE) if prof.kerb_tree_keep < 1.0 else None
     kerb_tree = (prof.trunk_height, prof.trunk_radius, prof.crown_lift, prof.kerb_crown_clearance)
     for side in (-1, 1):
 
@@ -338,7 +332,7 @@ def _furniture(b: _Builder, rng, plan: StreetPlan, x0: float, x1: float) -> None
                     zt = kerb_at(plan, side, xt)
                     yt = side * (y_curb_at(xt) + 0.55)
                     kept = tree_rng is None or tree_rng.random() < prof.kerb_tree_keep
-                    tree(b if kept else DISCARD, rng, xt, yt, zt, *kerb_tree)
+                    tree(b if kept else plants.DISCARD, rng, xt, yt, zt, *kerb_tree)
                     xt += rng.uniform(7.0, 12.0)
             x += seg
 
