@@ -273,7 +273,6 @@ class WorldProfile:
             "trunk_radius": 0.03 <= self.trunk_radius[0] and self.trunk_radius[1] <= 1.0,
             "crown_lift": 0.0 <= self.crown_lift <= 2.0,
             "kerb_crown_clearance": 0.0 <= self.kerb_crown_clearance <= 8.0,
-            "kerb_tree_keep": 0.0 <= self.kerb_tree_keep <= 1.0,
             "clutter_spacing": self.clutter_spacing >= 0,
             "lane_width": self.lane_width[0] >= 2.0,
             "sidewalk": self.sidewalk[0] >= 0.5,
@@ -340,7 +339,7 @@ _PROBABILITIES = (
     "guard_rail", "verge_flush", "kerb_flush", "verge_shrubs", "planting_beds", "lamp_keep",
     "lamp_signs", "verge_prob", "parked_fill", "parked_bus", "yard_cars", "lead_car_prob",
     "back_row_prob", "rem_dark_prob", "rem_dark_stuff", "road_dark", "road_reflect",
-    "sidewalk_reflect"
+    "sidewalk_reflect", "kerb_tree_keep"
 )  # fmt: skip
 
 CLASSIC = WorldProfile()
