@@ -197,6 +197,10 @@ TRAINED_ON = {
         "trained on the synthetic worlds only (as dsnet_synthetic_held_bn.pt, with low sign posts"
         " carrying plates of the real size)"
     ),
+    "dsnet_synthetic_buildings.pt": (
+        "trained on the synthetic worlds only (as dsnet_synthetic_sign_boards.pt, with twice the"
+        " building frontages)"
+    ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
     "dsnet_semantickitti_cpu.pt": (
         "trained on real scans of sequences 00-07, 09, 10 + rare instances pasted from synthetic streets"

@@ -64,6 +64,7 @@ SHIPPED: dict[str, str] = {
     "synthetic-full-density": "dsnet_synthetic_full_density.pt",
     "synthetic-held-bn": "dsnet_synthetic_held_bn.pt",
     "synthetic-sign-boards": "dsnet_synthetic_sign_boards.pt",
+    "synthetic-buildings": "dsnet_synthetic_buildings.pt",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
