@@ -53,3 +53,9 @@ def test_frontage_shares_must_sum_to_one():
 def test_row_62_files_are_row_56_worlds_with_more_building_frontages(world):
     changed = profile_changes(f"synth_buildings_{world}", f"synth_boards_{world}")
     assert changed == {"frontage_p": (0.25, 0.37, 0.28, 0.10)}
+
+
+@pytest.mark.parametrize("world", WORLDS)
+def test_row_63_files_are_row_56_worlds_with_building_frontages_at_0_30(world):
+    changed = profile_changes(f"synth_more_buildings_{world}", f"synth_boards_{world}")
+    assert changed == {"frontage_p": (0.30, 0.32, 0.28, 0.10)}
