@@ -116,8 +116,9 @@ class WorldProfile:
       carry a row of low shrubs (:mod:`~panoptic_bench.datasets.synthetic.plants`), own stream;
       ``planting_beds``: probability that a paved sidewalk segment ends at its back in a
       planting bed (terrain under dense ground cover, :func:`~.plants.planting_bed`), own stream;
-      ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus``: probability
-      that a parked car is a bus instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own stream;
+      ``parked_fill``: fraction of parking strips filled with cars; ``parked_bus`` /
+      ``parked_truck`` / ``parked_trailer``: probability that a parked car is a bus / a truck / a
+      trailer (other-vehicle) instead (:mod:`~panoptic_bench.datasets.synthetic.buses`), own streams;
       ``yard_cars``: probability that a green, fence or plaza frontage holds a row of parked cars
       behind its sidewalk (:mod:`~panoptic_bench.datasets.synthetic.yards`), own stream;
     - ``clutter_spacing``: mean spacing (m, 0 = none) per side of unlabelled clutter
@@ -191,6 +192,8 @@ class WorldProfile:
     parking_road: float = 0.0
     parked_fill: float = 1.0
     parked_bus: float = 0.0
+    parked_truck: float = 0.0
+    parked_trailer: float = 0.0
     yard_cars: float = 0.0
     ped_spacing: float = 30.0
     bike_spacing: float = 60.0
@@ -337,9 +340,9 @@ class WorldProfile:
 _PROBABILITIES = (
     "parking_prob", "parking_road", "ego_inner_lane", "side_street_prob", "fence_lattice",
     "guard_rail", "verge_flush", "kerb_flush", "verge_shrubs", "planting_beds", "lamp_keep",
-    "lamp_signs", "verge_prob", "parked_fill", "parked_bus", "yard_cars", "lead_car_prob",
-    "back_row_prob", "rem_dark_prob", "rem_dark_stuff", "road_dark", "road_reflect",
-    "sidewalk_reflect", "kerb_tree_keep"
+    "lamp_signs", "verge_prob", "parked_fill", "parked_bus", "parked_truck", "parked_trailer",
+    "yard_cars", "lead_car_prob", "back_row_prob", "rem_dark_prob", "rem_dark_stuff", "road_dark",
+    "road_reflect", "sidewalk_reflect", "kerb_tree_keep"
 )  # fmt: skip
 
 CLASSIC = WorldProfile()

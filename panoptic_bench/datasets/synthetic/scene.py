@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from panoptic_bench.datasets.synthetic.buses import park_buses
+from panoptic_bench.datasets.synthetic.buses import park_buses, park_instead
 from panoptic_bench.datasets.synthetic.ground import GroundMap
 from panoptic_bench.datasets.synthetic.profile import WorldProfile
 from panoptic_bench.datasets.synthetic.profile_files import load_profile
@@ -274,15 +274,18 @@ def generate_scene(
         # its own stream (spawning does not advance ``rng``): streets, things and phase unchanged
         shift = float(rng.spawn(1)[0].uniform(*plan.profile.ego_offset))
         ego_y += min(shift, plan.lane_width / 2 - EGO_LANE_MARGIN)
+    parked, rest = things[:n_parked], things[n_parked:]
     if plan.profile.parked_bus:
         # its own stream, spawned after every other one: the rest of the scene is unchanged
-        buses = park_buses(
-            rng.spawn(1)[0], things[:n_parked], plan.parking, plan.profile.parked_bus
-        )
-        things = buses + things[n_parked:]
+        parked = park_buses(rng.spawn(1)[0], parked, plan.parking, plan.profile.parked_bus)
     late: list[Thing] = []
     if plan.profile.yard_cars:
         # its own stream, spawned after every other one; the sensor draws their materials apart
         late = yard_cars(rng.spawn(1)[0], plan.yards, plan.profile.yard_cars)
+    for category, share in (("truck", plan.profile.parked_truck),
+                            ("other-vehicle", plan.profile.parked_trailer)):  # fmt: skip
+        if share:  # each its own stream, spawned after every other one (as parked_bus)
+            parked = park_instead(rng.spawn(1)[0], parked, plan.parking, share, category)
+    things = parked + rest
     phase = float(rng.uniform(0, 2 * np.pi))
     return Scene(static, ground, plan, things + late, speed, ego_y, phase, len(late))
