@@ -40,10 +40,9 @@ class WorldProfile:
     - ``real_elevations``: HDL-64E beams at the real rings' elevations
       (:data:`~panoptic_bench.datasets.synthetic.sensor_real.REAL_HDL64E_ELEVATIONS`);
     - ``low_ring_keep``: keep probability of the lowest rings (ring 0 first);
-    - ``ego_box``: ego-vehicle body that hides rays, ``(x_back, x_front, y_right, y_left,
-      z_top)`` in the sensor frame (metres; empty = none);
-    - ``max_range``: cap on the range (0 = the model's); ``range_noise``: std (m) of the range
-      noise, clipped at 2.5 std (0 = the model's, 2 cm);
+    - ``ego_box``: ego body hiding rays, ``(x_back, x_front, y_right, y_left, z_top)`` (sensor
+      frame, m; empty = none); ``max_range``: cap on the range (0 = the model's);
+      ``range_noise``: std (m) of the range noise, clipped at 2.5 std (0 = the model's, 2 cm);
     - ``physical_remission``: remission = reflectivity x incidence^``rem_incidence_exp`` x
       exp(-range / ``rem_range_m``) x lognormal(``rem_spread``), recorded as exactly 0 below
       ``rem_zero_below``; each primitive's reflectivity is spread by lognormal
@@ -264,14 +263,8 @@ class WorldProfile:
             "rem_grazing": _optional(self.rem_grazing, 2, 0.0, 0.3),
             "rem_near_upper": _near_upper_ok(self.rem_near_upper),
             "terrain_reflect": 0.0 <= self.terrain_reflect[0] and self.terrain_reflect[1] <= 1.0,
-            "rem_range_m": self.rem_range_m > 0,
             "max_range": 0.0 <= self.max_range <= 250.0,
             "range_noise": 0.0 <= self.range_noise <= 0.5,
-            "ped_spacing": self.ped_spacing > 0,
-            "bike_spacing": self.bike_spacing > 0,
-            "cyclist_spacing": self.cyclist_spacing > 0,
-            "tree_spacing": self.tree_spacing > 0,
-            "bush_spacing": self.bush_spacing > 0,
             "trunk_height": 0.2 <= self.trunk_height[0] and self.trunk_height[1] <= 6.0,
             "trunk_radius": 0.03 <= self.trunk_radius[0] and self.trunk_radius[1] <= 1.0,
             "crown_lift": 0.0 <= self.crown_lift <= 2.0,
@@ -290,6 +283,7 @@ class WorldProfile:
             and list(self.road_reflect_range) == sorted(self.road_reflect_range),
         }
         checks.update({k: 0.0 <= getattr(self, k) <= 1.0 for k in _PROBABILITIES})
+        checks.update({k: getattr(self, k) > 0 for k in _POSITIVE})
         problems += [
             f"{k} = {getattr(self, k)!r} is out of range" for k, ok in checks.items() if not ok
         ]
@@ -345,14 +339,17 @@ _PROBABILITIES = (
     "road_reflect", "sidewalk_reflect", "kerb_tree_keep"
 )  # fmt: skip
 
+#: Keys that must be positive.
+_POSITIVE = ("rem_range_m", "ped_spacing", "bike_spacing", "cyclist_spacing", "tree_spacing",
+             "bush_spacing")  # fmt: skip
 CLASSIC = WorldProfile()
 _SENSOR_KEYS = (
     "height_shift", "pitch_deg", "roll_deg", "real_elevations", "low_ring_keep", "ego_box",
     "max_range", "range_noise", "physical_remission", "rem_incidence_exp", "rem_range_m",
     "rem_spread", "rem_material_spread", "rem_dark_prob", "rem_dark_stuff", "rem_zero_below",
     "rem_dark_other", "rem_gain_people", "rem_gain_pole", "rem_gain_sign", "rem_stuff_spread",
-    "rem_gain_vegetation", "veg_rough", "rem_grazing", "rem_near_upper", "ground_rough", "ground_rough_corr",
-    "ground_wave", "camber",
+    "rem_gain_vegetation", "veg_rough", "rem_grazing", "rem_near_upper", "ground_rough",
+    "ground_rough_corr", "ground_wave", "camber",
 )  # fmt: skip
 
 REALISTIC = WorldProfile(
