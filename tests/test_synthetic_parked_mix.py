@@ -84,18 +84,16 @@ def test_park_instead_hand_worked():
     rng = np.random.default_rng(0)
     cars = [build(rng, "car", (x, 6.0, 0.0), np.pi) for x in (3.0, 8.0, 13.0, 30.0)]
     out = park_instead(np.random.default_rng(1), cars, [(1, 0.0, 31.5)], 1.0, "other-vehicle")
-    # cars 4.2-4.6 m long. Share 1: the car at 3 m becomes a 4-8 m trailer from its rear end
-    # (~0.8 m) and covers the car at 8 m whenever it is longer than ~4.9 m; the car at 30 m never
-    # can: a trailer from its rear end (27.9 m) ends past 31.9 m, beyond the strip's 31.5 m less
-    # the 0.3 m gap
-    cats = [t.category for t in out]
-    assert cats[0] == "other-vehicle" and cats[-1] == "car" and out[-1] is cars[-1]
-    assert len(out) == 3 if out[0].size[0] > 4.9 else len(out) >= 3
-    first = out[0]
+    # cars 4.2-4.6 m long. Share 1: the car at 3 m becomes a trailer from its rear end (~0.8 m);
+    # this stream draws it 7.8 m long, so it covers the car at 8 m (from ~5.7 m); the car at 13 m
+    # becomes the next trailer; the car at 30 m never can: a trailer (>= 4 m) from its rear end
+    # (27.9 m) ends past 31.9 m, beyond the strip's 31.5 m less the 0.3 m gap
+    first, second, last = out
+    assert [t.category for t in out] == ["other-vehicle", "other-vehicle", "car"]
+    assert first.size[0] == pytest.approx(7.80, abs=0.01) and last is cars[-1]
     assert first.xyz[0] - first.size[0] / 2 == pytest.approx(3.0 - cars[0].size[0] / 2)
-    assert first.xyz[1] == 6.0 and first.yaw == cars[0].yaw
-    for t in out[1:-1]:  # whatever else stands does not overlap the trailer
-        assert t.xyz[0] - t.size[0] / 2 >= first.xyz[0] + first.size[0] / 2
+    assert second.xyz[0] - second.size[0] / 2 == pytest.approx(13.0 - cars[2].size[0] / 2)
+    assert first.xyz[1] == second.xyz[1] == 6.0 and first.yaw == cars[0].yaw
     assert [c.category for c in cars] == ["car"] * 4  # input untouched
     same = park_instead(np.random.default_rng(1), cars, [(1, 0.0, 31.5)], 0.0, "truck")
     assert same == cars
