@@ -58,6 +58,8 @@ def official_scores(scans, min_points: int = 50) -> dict[str, float]:
     _, _, _, pq, sq, rq = ev.getPQ()
     miou, iou = ev.getSemIoU()
     th, st = list(sk.LABELS.thing_ids), list(sk.LABELS.stuff_ids)
+    tp, _, fn = ev.getSemIoUStats()
+    present = [c for c in th + st if tp[c] + fn[c] > 0]
     return {
         "pq_mean": np.mean(pq[th + st]),
         "pq_dagger": np.mean(list(pq[th]) + list(iou[st])),
@@ -72,6 +74,8 @@ def official_scores(scans, min_points: int = 50) -> dict[str, float]:
         "sq_things": np.mean(sq[th]),
         "accuracy": ev.getSemAcc(),
         "car_pq": pq[1],
+        "iou_present": np.mean(iou[present]),
+        "n_present": len(present),
     }
 
 
@@ -117,6 +121,10 @@ def test_eval_real_scans_matches_official(
     scores = json.loads((out1 / "scores.json").read_text())
     assert abs(scores["all"]["accuracy"] - ref["accuracy"]) <= 1e-12
     assert abs(scores["classes"]["car"]["PQ"] - ref["car_pq"]) <= 1e-12
+    # the mean over the classes with ground truth, from the official per-class IoU
+    assert 0 < ref["n_present"] < 19
+    assert abs(scores["all"]["mIoU_present"] - ref["iou_present"]) <= 1e-12
+    assert scores["all"]["mIoU_present"] > scores["all"]["mIoU"]
     assert scores["n_scans"] == 3 and scores["by_range"] == []
     assert 0 < scores["all"]["PQ"] < 1
     scores2 = json.loads((out2 / "scores.json").read_text())

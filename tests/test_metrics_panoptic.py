@@ -118,14 +118,29 @@ def test_semantic_iou_and_accuracy_by_hand() -> None:
     assert r.iou[3] == 4 / 6
     assert r.miou == pytest.approx((6 / 8 + 0 + 4 / 6) / 3)
     assert r.accuracy == 10 / 12
+    # class 2 has no ground truth: the official mean counts it as 0, the present mean skips it
+    assert r.present == (1, 3)
+    assert r.miou_present == pytest.approx((6 / 8 + 4 / 6) / 2)
+
+
+def test_present_classes_follow_ground_truth_only() -> None:
+    # class 2 predicted on 5 points of class 1 but never in the ground truth: not present
+    s = stats((5, 2, 0, 1, 0), (5, 1, 0, 1, 0), (4, 3, 0, 3, 0))
+    r = s.compute()
+    assert r.present == (1, 3) and r.iou[2] == 0.0
+    assert r.miou_present == pytest.approx((5 / 10 + 1.0) / 2)
+    # ground truth only on the ignored class: nothing present, the mean is NaN (not 0)
+    r = stats((7, 1, 0, 0, 0)).compute()
+    assert r.present == () and np.isnan(r.miou_present)
 
 
 def test_summary_keys_pq_dagger_and_floats() -> None:
     s = stats((10, 1, 1, 1, 1), (30, 3, 0, 3, 0), (10, 1, 0, 3, 0))
     r = s.compute()
     summ = r.summary(THINGS, STUFF)
-    keys = "PQ PQ_dagger SQ RQ PQ_th SQ_th RQ_th PQ_st SQ_st RQ_st mIoU accuracy".split()
-    assert list(summ) == keys
+    keys = "PQ PQ_dagger SQ RQ PQ_th SQ_th RQ_th PQ_st SQ_st RQ_st mIoU accuracy mIoU_present"
+    assert list(summ) == keys.split()
+    assert summ["mIoU_present"] == pytest.approx((r.iou[1] + r.iou[3]) / 2)  # class 2 absent
     assert all(type(v) is float and 0.0 <= v <= 1.0 for v in summ.values())
     assert summ["PQ_dagger"] == pytest.approx((r.pq[1] + r.pq[2] + r.iou[3]) / 3)
     assert summ["PQ_th"] == pytest.approx((r.pq[1] + r.pq[2]) / 2)

@@ -109,7 +109,7 @@ def test_missing_metrics_print_as_dash(tmp_path):
     run = load_run(_run(tmp_path, "r", scores, {"dataset": "semantickitti"}))
     md = to_markdown(main_tables([run])[0])
     assert md.splitlines()[-3] == (
-        "| **ours** | **r** | semantickitti | 50.0 | - | 62.5 | 80.0 | - | - | - | - | - | - | - |"
+        "| **ours** | **r** | semantickitti | 50.0 | - | 62.5 | 80.0 | - | - | - | - | - | - | - | - |"
     )
 
 

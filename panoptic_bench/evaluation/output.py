@@ -3,7 +3,7 @@
 ``scores.json`` (fractions in [0, 1])::
 
     {"all": {"PQ", "PQ_dagger", "SQ", "RQ", "PQ_th", "SQ_th", "RQ_th",
-             "PQ_st", "SQ_st", "RQ_st", "mIoU", "accuracy"},
+             "PQ_st", "SQ_st", "RQ_st", "mIoU", "accuracy", "mIoU_present"},
      "classes": {name: {"PQ", "SQ", "RQ", "IoU"}},
      "by_range": [{"range": [lo, hi], "points": n, "all": {...}, "classes": {...}}, ...],
      ...extra keys}

@@ -129,6 +129,7 @@ class PanopticStats:
         include = tuple(c for c in range(self.num_classes) if c not in self.ignore)
         inc = list(include)
         accuracy = ctp.sum() / np.maximum(ctp[inc].sum() + cfp[inc].sum(), EPS)
+        present = tuple(c for c in include if ctp[c] + cfn[c] > 0)
         return PanopticResult(
             pq=pq,
             sq=sq,
@@ -140,6 +141,8 @@ class PanopticStats:
             sq_mean=float(sq[inc].mean()),
             rq_mean=float(rq[inc].mean()),
             miou=float(iou[inc].mean()),
+            present=present,
+            miou_present=float(iou[list(present)].mean()) if present else float("nan"),
         )
 
 
@@ -155,6 +158,11 @@ class PanopticResult:
         Class ids averaged in the means.
     pq_mean, sq_mean, rq_mean, miou, accuracy : float
         Means over ``include`` and the point accuracy.
+    present : tuple of int
+        The included classes with at least one ground-truth point.
+    miou_present : float
+        Mean IoU over ``present`` only (NaN when no class is present). Not an official key: the
+        official ``miou`` averages all included classes, an absent class counting 0.
     """
 
     pq: np.ndarray
@@ -167,6 +175,8 @@ class PanopticResult:
     sq_mean: float
     rq_mean: float
     miou: float
+    present: tuple[int, ...] = ()
+    miou_present: float = float("nan")
 
     def summary(self, things: Sequence[int], stuff: Sequence[int]) -> dict[str, float]:
         """The headline numbers, as the official ``evaluate_panoptic.py`` computes them.
@@ -179,8 +189,9 @@ class PanopticResult:
         Returns
         -------
         dict of str to float
-            ``PQ, PQ_dagger, SQ, RQ, PQ_th, SQ_th, RQ_th, PQ_st, SQ_st, RQ_st, mIoU, accuracy``.
-            ``PQ_dagger`` averages thing PQ and stuff IoU.
+            ``PQ, PQ_dagger, SQ, RQ, PQ_th, SQ_th, RQ_th, PQ_st, SQ_st, RQ_st, mIoU, accuracy,
+            mIoU_present``. ``PQ_dagger`` averages thing PQ and stuff IoU; ``mIoU_present`` is
+            the mean IoU over the classes with ground truth (not an official key).
         """
         th, st = [int(c) for c in things], [int(c) for c in stuff]
         if set(th) & set(st) or sorted(th + st) != sorted(self.include):
@@ -205,6 +216,7 @@ class PanopticResult:
             "RQ_st": mean(self.rq, st),
             "mIoU": self.miou,
             "accuracy": self.accuracy,
+            "mIoU_present": self.miou_present,
         }
 
     def per_class(self, class_names: Sequence[str]) -> dict[str, dict[str, float]]:

@@ -36,6 +36,8 @@ MAIN_METRICS: tuple[str, ...] = (
     "SQ_st",
     "mIoU",
 )
+#: Our column beside the Tables 1-3 layout (not in the paper): mIoU over the classes with ground truth.
+PRESENT_METRIC = "mIoU_present"
 #: Metric keys of Tables 4 and 5.
 SHORT_METRICS: tuple[str, ...] = ("PQ", "PQ_dagger", "RQ", "SQ", "mIoU")
 #: How each metric key is printed in a table header (markdown / CSV).
@@ -51,6 +53,7 @@ METRIC_LABELS: dict[str, str] = {
     "RQ_st": "RQ_St",
     "SQ_st": "SQ_St",
     "mIoU": "mIoU",
+    PRESENT_METRIC: "mIoU (present)",
 }
 #: The per-class table of each panoptic quantity.
 PER_CLASS_TABLE: dict[str, int] = {"PQ": 6, "RQ": 7, "SQ": 8}

@@ -6,7 +6,7 @@ reads, and never recomputes:
 ``scores.json`` (required), written by the evaluator, metrics as fractions in [0, 1]::
 
     {"all": {"PQ", "PQ_dagger", "SQ", "RQ", "PQ_th", "SQ_th", "RQ_th",
-             "PQ_st", "SQ_st", "RQ_st", "mIoU", "accuracy"},
+             "PQ_st", "SQ_st", "RQ_st", "mIoU", "accuracy", "mIoU_present"},
      "classes": {name: {"PQ", "SQ", "RQ", "IoU"}},
      "by_range": [{"range": [lo, hi], "all": {...}}, ...]}      # optional; hi may be null
                                                                 # or Infinity; the metrics may
@@ -46,7 +46,7 @@ RUN_FILE = "run.json"
 ABLATION_KEYS = ("framework", "clustering", "bandwidth_learning")
 _FLAT_METRICS = frozenset(
     ("PQ", "PQ_dagger", "SQ", "RQ", "PQ_th", "SQ_th", "RQ_th", "PQ_st", "SQ_st", "RQ_st", "mIoU")
-) | {"accuracy"}
+) | {"accuracy", "mIoU_present"}
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ import pandas as pd
 from panoptic_bench.reports.paper import (
     MAIN_METRICS,
     PER_CLASS_TABLE,
+    PRESENT_METRIC,
     SHORT_METRICS,
     main_table_for,
     normalize_name,
@@ -90,7 +91,10 @@ def _metric_row(run: Run, columns: Sequence[str]) -> dict[str, float]:
 
 
 def main_tables(runs: Sequence[Run]) -> list[ReportTable]:
-    """Tables 1/2/3 layout: method x PQ, PQ†, RQ, SQ, PQ/RQ/SQ Th and St, mIoU.
+    """Tables 1/2/3 layout: method x PQ, PQ†, RQ, SQ, PQ/RQ/SQ Th and St, mIoU, mIoU (present).
+
+    The last column (``mIoU_present``, the mean over the classes with ground truth) is ours; the
+    paper's rows leave it empty.
 
     Runs are grouped by the paper table of their ``dataset``/``split`` (SemanticKITTI val ->
     Table 1, test -> Table 2, nuScenes -> Table 3); runs of other datasets form a table without
@@ -103,14 +107,15 @@ def main_tables(runs: Sequence[Run]) -> list[ReportTable]:
     tables = []
     for number in sorted(groups, key=lambda n: 99 if n is None else n):
         group = groups[number]
+        columns = (*MAIN_METRICS, PRESENT_METRIC)
         ours = _our_rows(
             group,
             "Method",
             [r.method for r in group],
-            [_metric_row(r, MAIN_METRICS) for r in group],
+            [_metric_row(r, columns) for r in group],
         )
         if number is None:
-            frame = _assemble(None, ours, "Method", MAIN_METRICS)
+            frame = _assemble(None, ours, "Method", columns)
             tables.append(
                 ReportTable(
                     "table_main_other",
@@ -122,7 +127,7 @@ def main_tables(runs: Sequence[Run]) -> list[ReportTable]:
             )
             continue
         info = paper_table_info(number)
-        frame = _assemble(_paper_rows(number, "Method", MAIN_METRICS), ours, "Method", MAIN_METRICS)
+        frame = _assemble(_paper_rows(number, "Method", columns), ours, "Method", columns)
         dataset = _DATASET_NAMES[info.dataset]
         split = _SPLIT_NAMES[info.split]
         tables.append(
