@@ -155,6 +155,11 @@ def test_eval_writes_per_scan_counts_and_intervals_and_compare(tmp_path: Path, c
     assert m["diff"] > 0 and m["low"] > 0 and m["p_b_greater"] == 1.0
     assert m["a"] == pytest.approx(scores["all"]["mIoU"], abs=1e-12)
     assert "P(B > A)" in (tmp_path / "cmp" / "compare.txt").read_text()
+    # five of the 19 classes have ground truth and none other is predicted: the present mean is
+    # the official mean times 19 / 5, in both sets and so in their difference
+    p = cmp["metrics"]["mIoU_present"]
+    assert p["a"] == pytest.approx(m["a"] * 19 / 5, abs=1e-12)
+    assert p["diff"] == pytest.approx(m["diff"] * 19 / 5, abs=1e-12) and p["low"] > 0
 
 
 def test_compare_bad_inputs(tmp_path: Path, capsys):
