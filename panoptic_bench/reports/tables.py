@@ -45,6 +45,8 @@ NOTE = (
     "data is the paper's."
 )
 NOTE_OURS = "All values in %, computed by panoptic-bench on the data named in the Data column."
+#: Columns of the Tables 1-3 layout: the paper's, then ours (empty in the paper's rows).
+_MAIN_COLUMNS = (*MAIN_METRICS, PRESENT_METRIC)
 
 
 def _pct(value: object) -> float:
@@ -107,15 +109,14 @@ def main_tables(runs: Sequence[Run]) -> list[ReportTable]:
     tables = []
     for number in sorted(groups, key=lambda n: 99 if n is None else n):
         group = groups[number]
-        columns = (*MAIN_METRICS, PRESENT_METRIC)
         ours = _our_rows(
             group,
             "Method",
             [r.method for r in group],
-            [_metric_row(r, columns) for r in group],
+            [_metric_row(r, _MAIN_COLUMNS) for r in group],
         )
         if number is None:
-            frame = _assemble(None, ours, "Method", columns)
+            frame = _assemble(None, ours, "Method", _MAIN_COLUMNS)
             tables.append(
                 ReportTable(
                     "table_main_other",
@@ -127,7 +128,9 @@ def main_tables(runs: Sequence[Run]) -> list[ReportTable]:
             )
             continue
         info = paper_table_info(number)
-        frame = _assemble(_paper_rows(number, "Method", columns), ours, "Method", columns)
+        frame = _assemble(
+            _paper_rows(number, "Method", _MAIN_COLUMNS), ours, "Method", _MAIN_COLUMNS
+        )
         dataset = _DATASET_NAMES[info.dataset]
         split = _SPLIT_NAMES[info.split]
         tables.append(
