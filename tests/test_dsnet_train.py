@@ -388,3 +388,28 @@ def test_training_with_instance_pasting_and_a_bad_bank(cfg: DSNetConfig, tmp_pat
     err = capsys.readouterr().err
     assert "augment.paste_bank: not a directory" in err and str(missing) in err
     assert "Traceback" not in err and not (tmp_path / "bad_run" / "checkpoints").exists()
+
+
+def test_train_names_labelled_sequences_it_will_not_read(cfg: DSNetConfig, tmp_path: Path, capsys):
+    """A labelled sequence in neither list is named on stderr; unlabelled ones are not."""
+    from panoptic_bench.dsnet.data.datasets import unread_sequences
+
+    world = write_tiny_world(tmp_path / "w", {"00": 2, "05": 1, "08": 1, "22": 1})
+    (world / "sequences" / "30" / "velodyne").mkdir(parents=True)  # no labels: a test sequence
+    assert unread_sequences(world, cfg.data) == ["05", "22"]  # config: train 00, validate 08
+    official = cfg.replace(data={"train_sequences": [], "val_sequences": []}).data
+    assert unread_sequences(world, official) == ["22"]  # 00 and 05 train, 08 valid
+    nus = cfg.replace(data={"format": DatasetFormat.NUSCENES}).data
+    assert unread_sequences(world, nus) == []
+    cfg_path = tmp_path / "tiny.yaml"
+    save_config(cfg, cfg_path)
+    args = ["train", "--config", str(cfg_path), "--data", str(world), "--no-progress"]
+    assert cli([*args, "--out", str(tmp_path / "a"), "--stage", "semantic", "--epochs", "0"]) == 0
+    err = capsys.readouterr().err
+    assert "2 labelled sequence(s)" in err and "not read: 05, 22" in err
+    every = ["--train-sequences", "0,5,22"]
+    assert (
+        cli([*args, "--out", str(tmp_path / "b"), "--stage", "semantic", "--epochs", "0", *every])
+        == 0
+    )
+    assert "not read" not in capsys.readouterr().err

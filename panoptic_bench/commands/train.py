@@ -71,6 +71,7 @@ def handler(args: argparse.Namespace) -> int:
         import dataclasses
 
         cfg = dataclasses.replace(cfg, optim=dataclasses.replace(cfg.optim, seed=args.seed))
+    _note_unread_sequences(args.data, cfg)
     paths = train(
         cfg,
         args.data,
@@ -86,6 +87,22 @@ def handler(args: argparse.Namespace) -> int:
     for stage, path in paths.items():
         print(f"{stage}: {path}")
     return 0
+
+
+def _note_unread_sequences(root: str, cfg) -> None:
+    """Say on stderr which labelled sequences of ``root`` this run will not read."""
+    import sys
+
+    from panoptic_bench.dsnet.data.datasets import unread_sequences
+
+    unread = unread_sequences(root, cfg.data)
+    if unread:
+        print(
+            f"note: {len(unread)} labelled sequence(s) under {root}/sequences are in neither "
+            f"data.train_sequences nor data.val_sequences and are not read: {', '.join(unread)} "
+            "(list them in the config or pass --train-sequences)",
+            file=sys.stderr,
+        )
 
 
 def with_sequences(cfg, train: list[str] | None, val: list[str] | None):

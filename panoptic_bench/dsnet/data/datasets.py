@@ -26,6 +26,7 @@ __all__ = [
     "NuScenesDataset",
     "SemanticKittiDataset",
     "open_dataset",
+    "unread_sequences",
 ]
 
 
@@ -274,3 +275,31 @@ def open_dataset(root: str | Path, data: DataConfig, which: str) -> LidarDataset
     if len(ds) == 0:
         raise InputError(f"no samples in the {which} split ({split})", root)
     return ds
+
+
+def unread_sequences(root: str | Path, data: DataConfig) -> list[str]:
+    """Labelled SemanticKITTI sequences under ``root`` that neither training nor validation reads.
+
+    A sequence counts when ``root/sequences/XX/labels`` is a directory; the training and
+    validation lists are ``data.train_sequences`` / ``data.val_sequences``, or the official
+    split's sequences where a list is empty. Always empty for nuScenes and for a root without a
+    ``sequences`` directory (``open_dataset`` reports that).
+
+    Returns
+    -------
+    list of str
+        Sequence names, sorted (e.g. ``["22", "23"]``).
+    """
+    from panoptic_bench.datasets import semantickitti as sk
+
+    base = Path(root) / "sequences"
+    if data.format is not DatasetFormat.SEMANTICKITTI or not base.is_dir():
+        return []
+    read = set()
+    for split, seqs in (
+        (data.train_split, data.train_sequences),
+        (data.val_split, data.val_sequences),
+    ):
+        read |= {d.name for d in sk.sequence_dirs(root, split=split, sequences=seqs or None)}
+    labelled = sorted(d.name for d in base.iterdir() if (d / "labels").is_dir())
+    return [name for name in labelled if name not in read]
