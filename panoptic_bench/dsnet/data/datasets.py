@@ -301,5 +301,5 @@ def unread_sequences(root: str | Path, data: DataConfig) -> list[str]:
         (data.val_split, data.val_sequences),
     ):
         read |= {d.name for d in sk.sequence_dirs(root, split=split, sequences=seqs or None)}
-    labelled = sorted(d.name for d in base.iterdir() if (d / "labels").is_dir())
+    labelled = [d.name for d in sk.sequence_dirs(root) if (d / "labels").is_dir()]
     return [name for name in labelled if name not in read]
