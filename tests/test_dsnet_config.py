@@ -113,3 +113,10 @@ def test_remission_input_reaches_the_network():
     off = cfg.replace(model={"remission_input": False})
     assert DSNetConfig.from_dict(off.to_dict()) == off
     assert build_backbone(off, 20).remission_input is False
+
+
+def test_new_start_recipe_equals_the_old_starts():
+    # realism row 71: the header says the new start is the old start's recipe, only the data differ
+    root = Path(__file__).resolve().parents[1] / "configs"
+    new = load_config(root / "dsnet_synthetic_buildings_start_cpu.yaml")
+    assert new == load_config(root / "dsnet_synthetic_realistic_cpu.yaml")
