@@ -115,8 +115,10 @@ def test_remission_input_reaches_the_network():
     assert build_backbone(off, 20).remission_input is False
 
 
-def test_new_start_recipe_equals_the_old_starts():
-    # realism row 71: the header says the new start is the old start's recipe, only the data differ
+@pytest.mark.parametrize(
+    "name", ["dsnet_synthetic_buildings_start_cpu.yaml", "dsnet_synthetic_mixed_start_cpu.yaml"]
+)
+def test_new_start_recipe_equals_the_old_starts(name):
+    # realism rows 71, 72: each header says its start is the old start's recipe, only the data differ
     root = Path(__file__).resolve().parents[1] / "configs"
-    new = load_config(root / "dsnet_synthetic_buildings_start_cpu.yaml")
-    assert new == load_config(root / "dsnet_synthetic_realistic_cpu.yaml")
+    assert load_config(root / name) == load_config(root / "dsnet_synthetic_realistic_cpu.yaml")
