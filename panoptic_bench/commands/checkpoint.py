@@ -1,4 +1,4 @@
-"""``panoptic-bench checkpoint``: inspect, export, average or import DS-Net checkpoints."""
+"""``panoptic-bench checkpoint``: inspect, export, average, import or re-estimate DS-Net checkpoints."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "checkpoint",
         help="show or export DS-Net checkpoints",
-        description="Inspect a checkpoint written by `train`, or export it for inference.",
+        description="Inspect a checkpoint written by `train`, export it for inference, average, "
+        "import or re-estimate its BatchNorm statistics.",
     )
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     show = sub.add_parser("show", help="stage, epoch, class map, metrics and config")
@@ -79,6 +80,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     gap.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
     gap.add_argument("--no-progress", action="store_true", help="no progress bars")
     gap.set_defaults(func=gap_handler)
+    rec = sub.add_parser(
+        "recalibrate-bn",
+        help="re-estimate the BatchNorm statistics on a dataset (weights unchanged)",
+        description="Write a copy of the checkpoint whose backbone BatchNorm running mean and "
+        "variance are the average over --scans evenly spaced scans of --data (seen as `infer` "
+        "sees them) of each scan's batch statistics; every weight stays bit-identical. Asks "
+        "whether a network's held statistics or its features carry a result.",
+    )
+    rec.add_argument("checkpoint", help="a .pt file or a shipped short name")
+    rec.add_argument("--data", required=True, help="root to estimate the statistics on")
+    rec.add_argument("--split", default="train", help="split or sequences (00,01) (train)")
+    rec.add_argument(
+        "--scans", type=ca.int_range(1), default=200, help="scans to average (default 200)"
+    )
+    rec.add_argument("--out", required=True, help="destination .pt")
+    rec.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    rec.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
+    rec.add_argument("--no-progress", action="store_true", help="no progress bar")
+    rec.set_defaults(func=recalibrate_handler)
 
 
 def show_handler(args: argparse.Namespace) -> int:
@@ -191,4 +211,33 @@ def gap_handler(args: argparse.Namespace) -> int:
             f"{r['layer']:48s} offset {r['offset']:.3f}  spread {r['spread']:.3f}  "
             f"ratio {r['ratio']:.2f}  |log std| {r['log_std']:.3f}"
         )
+    return 0
+
+
+def recalibrate_handler(args: argparse.Namespace) -> int:
+    import torch
+    from tqdm import tqdm
+
+    from panoptic_bench.dsnet.bn_recalibration import recalibrate_checkpoint
+    from panoptic_bench.dsnet.checkpoint import load_checkpoint, resolve_checkpoint, save_checkpoint
+    from panoptic_bench.dsnet.inference.run import check_fits, open_split
+    from panoptic_bench.dsnet.statistics_gap import evenly_spaced
+    from panoptic_bench.errors import InputError
+    from panoptic_bench.io import check_output_file
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    src = resolve_checkpoint(args.checkpoint)
+    check_output_file(args.out, overwrite=args.overwrite, inputs=(src, args.data))
+    ck = load_checkpoint(src)
+    check_fits(ck, args.data)
+    ds = open_split(ck.config, args.data, args.split)
+    if len(ds) == 0:
+        raise InputError(f"no scans in split {args.split!r}", args.data)
+    picks = evenly_spaced(len(ds), args.scans)
+    bar = tqdm(picks, desc="BatchNorm statistics", disable=args.no_progress, leave=False)
+    note = f"{args.data} split {args.split}"
+    new, seen = recalibrate_checkpoint(ck, (ds.load(i) for i in bar), note)
+    save_checkpoint(new, args.out)
+    print(f"{args.out}: stage {new.stage}, BatchNorm statistics of {seen} scans of {note}")
     return 0
