@@ -14,9 +14,10 @@ from torch.nn.modules.batchnorm import _BatchNorm
 
 from panoptic_bench.cli import main
 from panoptic_bench.dsnet.bn_recalibration import (
+    VIEWS,
     inference_view,
-    recalibrate_batchnorm,
     recalibrate_checkpoint,
+    view_samples,
 )
 from panoptic_bench.dsnet.checkpoint import build_backbone, build_grid, load_checkpoint
 from panoptic_bench.dsnet.config import DSNetConfig
@@ -46,51 +47,68 @@ def _net(ck_path):
     return ck, net
 
 
+def _first_norm(net):
+    return next((n, m) for n, m in net.named_modules() if isinstance(m, _BatchNorm))
+
+
 def test_statistics_are_the_mean_of_the_scans_batch_statistics(tiny):
+    # the first BatchNorm's input depends on no statistics: record it per scan by hand
     ck_path, world = tiny
     ck, net = _net(ck_path)
     ds = SemanticKittiDataset(world, None, ["00"])
-    norms = {n: m for n, m in net.named_modules() if isinstance(m, _BatchNorm)}
-    seen: dict[str, list[torch.Tensor]] = {n: [] for n in norms}
-    for name, m in norms.items():
-        m.register_forward_pre_hook(lambda mod, a, n=name: seen[n].append(a[0].detach().double()))
-    momenta = {n: m.momentum for n, m in norms.items()}
-    before = {k: v.clone() for k, v in net.state_dict().items()}
-    assert recalibrate_batchnorm(net, (ds.load(i) for i in range(4)), build_grid(ck.config)) == 4
-    assert not net.training and all(m.momentum == momenta[n] for n, m in norms.items())
-    for name, m in norms.items():
-        calls = [x for x in seen[name] if len(x) > 1]
-        assert len(calls) == int(m.num_batches_tracked) > 0, name
-        mean = torch.stack([x.mean(0) for x in calls]).mean(0)
-        var = torch.stack([x.var(0, unbiased=True) for x in calls]).mean(0)
-        assert torch.allclose(m.running_mean.double(), mean, atol=1e-5), name
-        assert torch.allclose(m.running_var.double(), var, rtol=1e-4, atol=1e-6), name
-    changed = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    name, bn = _first_norm(net)
+    rows = []
+    bn.register_forward_pre_hook(lambda m, a: rows.append(a[0].detach().double()))
+    held_unit_statistics(net, (ds.load(i) for i in range(4)), build_grid(ck.config))
+    new, seen = recalibrate_checkpoint(ck, view_samples(ck, ds, range(4)), "w")
+    assert seen == 4 and int(new.backbone[f"{name}.num_batches_tracked"]) == 4
+    mean = torch.stack([x.mean(0) for x in rows]).mean(0)
+    var = torch.stack([x.var(0, unbiased=True) for x in rows]).mean(0)
+    assert torch.allclose(new.backbone[f"{name}.running_mean"].double(), mean, atol=1e-5)
+    assert torch.allclose(new.backbone[f"{name}.running_var"].double(), var, rtol=1e-4)
+    changed = {k for k, v in new.backbone.items() if not torch.equal(v, ck.backbone[k])}
     assert changed and all(
         k.endswith(("running_mean", "running_var", "num_batches_tracked")) for k in changed
     )
+    assert len(changed) == 3 * sum(isinstance(m, _BatchNorm) for m in net.modules())
 
 
 def test_first_layer_is_centred_on_its_own_data(tiny):
-    # the first BatchNorm's input does not depend on any statistics: after re-estimation the
-    # scans' channel means, in held units, average to 0 (before: the random held statistics)
+    # after re-estimation the scans' first-layer channel means, in held units, average to 0
+    # (before: off by the random held statistics); the train view centres its own scans
     ck_path, world = tiny
     ck, net = _net(ck_path)
     ds = SemanticKittiDataset(world, None, ["00"])
     grid = build_grid(ck.config)
-    first = next(n for n, m in net.named_modules() if isinstance(m, _BatchNorm))
-    off = held_unit_statistics(net, (ds.load(i) for i in range(4)), grid).means[first].mean(0)
-    assert np.abs(off).max() > 0.5
-    recalibrate_batchnorm(net, (ds.load(i) for i in range(4)), grid)
-    on = held_unit_statistics(net, (ds.load(i) for i in range(4)), grid).means[first].mean(0)
-    assert np.abs(on).max() < 1e-3
+    name, _ = _first_norm(net)
+    for view in VIEWS:
+        scans = list(view_samples(ck, ds, range(4), view))
+        off = held_unit_statistics(net, scans, grid).means[name].mean(0)
+        assert np.abs(off).max() > 0.5
+        new, _ = recalibrate_checkpoint(ck, scans)
+        net.load_state_dict(new.backbone)
+        on = held_unit_statistics(net, scans, grid).means[name].mean(0)
+        assert np.abs(on).max() < 1e-3, view
+        net.load_state_dict(ck.backbone)
+
+
+def test_train_view_augments_like_training(tiny):
+    ck_path, world = tiny
+    ck = load_checkpoint(ck_path)
+    ds = SemanticKittiDataset(world, None, ["00"])
+    a = list(view_samples(ck, ds, range(2), "train"))
+    b = list(view_samples(ck, ds, range(2), "train"))
+    assert all(np.array_equal(x.xyz, y.xyz) for x, y in zip(a, b))  # seeded
+    assert not np.array_equal(a[0].xyz, ds.load(0).xyz)  # rotated / flipped / scaled
+    with pytest.raises(ValueError, match="view"):
+        view_samples(ck, ds, range(2), "test")
 
 
 def test_no_scan_is_an_error(tiny):
     ck_path, _ = tiny
-    ck, net = _net(ck_path)
+    ck = load_checkpoint(ck_path)
     with pytest.raises(InputError, match="no scans"):
-        recalibrate_batchnorm(net, [], build_grid(ck.config))
+        recalibrate_checkpoint(ck, [])
 
 
 def test_inference_view_thins_like_infer(tiny):
@@ -112,7 +130,7 @@ def test_checkpoint_copy_leaves_the_source(tiny):
     ck = load_checkpoint(ck_path)
     ref = {k: v.clone() for k, v in ck.backbone.items()}
     ds = SemanticKittiDataset(world, None, ["00"])
-    new, seen = recalibrate_checkpoint(ck, (ds.load(i) for i in range(2)), "w")
+    new, seen = recalibrate_checkpoint(ck, view_samples(ck, ds, range(2)), "w")
     assert seen == 2 and new.metrics[-1] == {"bn_recalibrated_on": "w", "scans": 2}
     assert all(torch.equal(v, ref[k]) for k, v in ck.backbone.items())
     key = next(k for k in ref if k.endswith("running_mean"))
@@ -127,6 +145,9 @@ def test_cli(tiny, tmp_path, capsys):
     argv = ["checkpoint", "recalibrate-bn", str(ck), "--data", str(world), "--split", "00"]
     assert main([*argv, "--scans", "3", "--out", str(out), "--no-progress"]) == 0
     assert "3 scans" in capsys.readouterr().out
+    out2 = tmp_path / "train.pt"
+    assert main([*argv, "--view", "train", "--out", str(out2), "--no-progress"]) == 0
+    assert "train view" in load_checkpoint(out2).metrics[-1]["bn_recalibrated_on"]
     assert hashlib.sha256(ck.read_bytes()).hexdigest() == digest  # input untouched
     new = load_checkpoint(out)
     assert new.metrics[-1]["scans"] == 3 and new.stage == "ds"

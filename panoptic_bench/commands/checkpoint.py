@@ -94,6 +94,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument(
         "--scans", type=ca.int_range(1), default=200, help="scans to average (default 200)"
     )
+    rec.add_argument(
+        "--view",
+        choices=("infer", "train"),
+        default="infer",
+        help="scans as `infer` feeds them (default) or as the checkpoint's training augmented "
+        "them (its augment section, no mixing or pasting)",
+    )
     rec.add_argument("--out", required=True, help="destination .pt")
     rec.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     rec.add_argument("--threads", type=ca.threads, help="torch CPU threads (default: torch's)")
@@ -218,7 +225,7 @@ def recalibrate_handler(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from panoptic_bench.dsnet.bn_recalibration import recalibrate_checkpoint
+    from panoptic_bench.dsnet.bn_recalibration import recalibrate_checkpoint, view_samples
     from panoptic_bench.dsnet.checkpoint import load_checkpoint, resolve_checkpoint, save_checkpoint
     from panoptic_bench.dsnet.inference.run import check_fits, open_split
     from panoptic_bench.dsnet.statistics_gap import evenly_spaced
@@ -236,8 +243,8 @@ def recalibrate_handler(args: argparse.Namespace) -> int:
         raise InputError(f"no scans in split {args.split!r}", args.data)
     picks = evenly_spaced(len(ds), args.scans)
     bar = tqdm(picks, desc="BatchNorm statistics", disable=args.no_progress, leave=False)
-    note = f"{args.data} split {args.split}"
-    new, seen = recalibrate_checkpoint(ck, (ds.load(i) for i in bar), note)
+    note = f"{args.data} split {args.split} ({args.view} view)"
+    new, seen = recalibrate_checkpoint(ck, view_samples(ck, ds, bar, args.view), note)
     save_checkpoint(new, args.out)
     print(f"{args.out}: stage {new.stage}, BatchNorm statistics of {seen} scans of {note}")
     return 0
