@@ -13,7 +13,7 @@ Every other tensor, convolution and affine BatchNorm weights included, stays bit
 Two views of a scan (``view``):
 
 - ``"infer"``: as ``infer`` feeds it: thinned to ``augment.max_points`` by the inference subset
-  (:func:`panoptic_bench.dsnet.data.density.thin`, seeded by the scan) when the config sets
+  (:func:`panoptic_bench.dsnet.data.density.inference_subset`, seeded by the scan) when the config sets
   ``inference.match_training_density``, otherwise whole;
 - ``"train"``: as the checkpoint's training augmented it (its ``augment`` section: thinning,
   rotation, flip, scale, pose jitter, remission gain / gamma / zeroing, epoch 0 of its seed),
@@ -26,14 +26,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 
-import numpy as np
 import torch
 from torch import nn
 from torch.nn.modules.batchnorm import _BatchNorm
 
 from panoptic_bench.dsnet.checkpoint import Checkpoint, build_backbone, build_grid
 from panoptic_bench.dsnet.data.datasets import LidarDataset, LidarSample
-from panoptic_bench.dsnet.data.density import density_seed, thin
+from panoptic_bench.dsnet.data.density import inference_subset
 from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.training.averaging import recalibrate_batchnorm
@@ -51,8 +50,7 @@ def inference_view(ck: Checkpoint, sample: LidarSample) -> LidarSample:
     else unchanged."""
     cfg = ck.config
     if cfg.inference.match_training_density and cfg.augment.max_points > 0:
-        rng = np.random.default_rng(density_seed(sample.key))
-        return thin(sample, cfg.augment.max_points, rng)[0]
+        return inference_subset(sample, cfg.augment.max_points)[0]
     return sample
 
 

@@ -16,6 +16,7 @@ import numpy as np
 __all__ = [
     "DensityMatchedPredictor",
     "density_seed",
+    "inference_subset",
     "nearest_kept",
     "predict_at_density",
     "thin",
@@ -64,6 +65,13 @@ def density_seed(key: tuple[str, ...]) -> list[int]:
     return [int.from_bytes(part.encode()[:8].ljust(8, b"\0"), "little") for part in key] or [0]
 
 
+def inference_subset(sample, max_points: int):
+    """``(thinned LidarSample, kept indices or None)``: the subset inference predicts, drawn by
+    :func:`thin` from a stream seeded by the scan key (:func:`density_seed`), so it is the same
+    subset on every call."""
+    return thin(sample, max_points, np.random.default_rng(density_seed(sample.key)))
+
+
 def nearest_kept(xyz: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """For every point, the position in ``keep`` of its nearest kept point (3-D, Euclidean).
 
@@ -104,8 +112,7 @@ def predict_at_density(predict, sample, max_points: int, panoptic: bool = True):
     """
     import dataclasses
 
-    rng = np.random.default_rng(density_seed(sample.key))
-    small, keep = thin(sample, max_points, rng)
+    small, keep = inference_subset(sample, max_points)
     pred = predict(small, panoptic=panoptic)
     if keep is None:
         return pred
