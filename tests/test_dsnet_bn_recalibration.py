@@ -111,6 +111,21 @@ def test_no_scan_is_an_error(tiny):
         recalibrate_checkpoint(ck, [])
 
 
+def test_too_small_scan_names_the_scan(tiny):
+    ck_path, world = tiny
+    ck = load_checkpoint(ck_path)
+    sample = SemanticKittiDataset(world, None, ["00"]).load(1)
+    one = dataclasses.replace(
+        sample,
+        xyz=sample.xyz[:1],
+        remission=sample.remission[:1],
+        sem=sample.sem[:1],
+        inst=sample.inst[:1],
+    )
+    with pytest.raises(InputError, match="00/000001 \\(1 points\\) is too small"):
+        recalibrate_checkpoint(ck, [one])
+
+
 def test_inference_view_thins_like_infer(tiny):
     ck_path, world = tiny
     ck = load_checkpoint(ck_path)

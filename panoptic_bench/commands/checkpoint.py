@@ -84,8 +84,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "recalibrate-bn",
         help="re-estimate the BatchNorm statistics on a dataset (weights unchanged)",
         description="Write a copy of the checkpoint whose backbone BatchNorm running mean and "
-        "variance are the average over --scans evenly spaced scans of --data (seen as `infer` "
-        "sees them) of each scan's batch statistics; every weight stays bit-identical. Asks "
+        "variance are the average over --scans evenly spaced scans of --data (in --view) of each "
+        "scan's batch statistics; every weight stays bit-identical. Asks "
         "whether a network's held statistics or its features carry a result.",
     )
     rec.add_argument("checkpoint", help="a .pt file or a shipped short name")

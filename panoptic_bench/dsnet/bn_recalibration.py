@@ -12,9 +12,9 @@ Every other tensor, convolution and affine BatchNorm weights included, stays bit
 
 Two views of a scan (``view``):
 
-- ``"infer"``: as ``infer`` feeds it: thinned to ``augment.max_points`` by the inference subset
-  (:func:`panoptic_bench.dsnet.data.density.inference_subset`, seeded by the scan) when the config sets
-  ``inference.match_training_density``, otherwise whole;
+- ``"infer"``: as ``infer`` feeds it: thinned to ``augment.max_points`` by the inference
+  subset (:func:`panoptic_bench.dsnet.data.density.inference_subset`, seeded by the scan) when
+  the config sets ``inference.match_training_density``, otherwise whole;
 - ``"train"``: as the checkpoint's training augmented it (its ``augment`` section: thinning,
   rotation, flip, scale, pose jitter, remission gain / gamma / zeroing, epoch 0 of its seed),
   without scene mixing or instance pasting, which need other scans and a bank. This is the view
@@ -91,7 +91,8 @@ def recalibrate_checkpoint(
     Raises
     ------
     InputError
-        No sample, or a BatchNorm that no scan reached.
+        No sample, a scan too small for batch statistics (naming it), or a BatchNorm that the
+        network never calls.
     """
     net = build_backbone(ck.config, ck.class_map.num_classes)
     net.load_state_dict(ck.backbone)
@@ -100,7 +101,13 @@ def recalibrate_checkpoint(
 
     def forward(module: nn.Module, sample: LidarSample):
         seen.append(sample.key)
-        return backbone_forward(module, [sample], grid, torch.device(device))
+        try:
+            return backbone_forward(module, [sample], grid, torch.device(device))
+        except ValueError as err:  # a BatchNorm given one row has no batch statistics
+            raise InputError(
+                f"scan {'/'.join(sample.key)} ({len(sample.xyz)} points) is too small to measure "
+                f"BatchNorm statistics on ({err}); leave such scans out of --split"
+            ) from None
 
     with torch.no_grad():
         recalibrate_batchnorm(net, samples, forward)
@@ -110,7 +117,10 @@ def recalibrate_checkpoint(
     state = {k: v.detach().clone() for k, v in net.state_dict().items()}
     empty = [n for n in norms if int(state[f"{n}.num_batches_tracked"]) == 0]
     if empty:
-        raise InputError(f"BatchNorm {empty[0]} (and {len(empty) - 1} more) saw no scan")
+        raise InputError(
+            f"BatchNorm {empty[0]} (and {len(empty) - 1} more) was never called by the network, "
+            "so it has no statistics to re-estimate; this checkpoint cannot be recalibrated"
+        )
     row = {"bn_recalibrated_on": note, "scans": len(seen)}
     out = dataclasses.replace(
         ck,
