@@ -19,6 +19,7 @@ from panoptic_bench.dsnet.data.datasets import ClassMap, LidarSample
 from panoptic_bench.dsnet.data.density import (
     DensityMatchedPredictor,
     density_seed,
+    inference_max_points,
     nearest_kept,
     predict_at_density,
     thin_indices,
@@ -198,6 +199,17 @@ def test_training_set_class_gain_on_named_classes():
     bad = dataclasses.replace(base, remission_class_gain_classes=("lawn",))
     with pytest.raises(InputError, match="remission_class_gain_classes"):
         TrainingSet(_Data(), bad, seed=2)
+
+
+def test_inference_max_points_is_the_one_density_policy():
+    def cfg(match: bool, n: int) -> DSNetConfig:
+        return DSNetConfig.from_dict(
+            {"augment": {"max_points": n}, "inference": {"match_training_density": match}}
+        )
+
+    assert inference_max_points(cfg(False, 25000)) == 0  # policy off: every point
+    assert inference_max_points(cfg(True, 25000)) == 25000  # training density
+    assert inference_max_points(cfg(True, 0)) == 0  # training kept every point too
 
 
 def test_density_policy_spreads_to_nearest_kept_point():

@@ -32,7 +32,7 @@ from torch.nn.modules.batchnorm import _BatchNorm
 
 from panoptic_bench.dsnet.checkpoint import Checkpoint, build_backbone, build_grid
 from panoptic_bench.dsnet.data.datasets import LidarDataset, LidarSample
-from panoptic_bench.dsnet.data.density import inference_subset
+from panoptic_bench.dsnet.data.density import inference_max_points, inference_subset
 from panoptic_bench.dsnet.data.training_set import TrainingSet
 from panoptic_bench.dsnet.model.forward import backbone_forward
 from panoptic_bench.dsnet.training.averaging import recalibrate_batchnorm
@@ -48,10 +48,8 @@ def inference_view(ck: Checkpoint, sample: LidarSample) -> LidarSample:
     """``sample`` as ``infer`` feeds it to ``ck``'s network: thinned to ``augment.max_points``
     (the inference subset, seeded by the scan key) under ``inference.match_training_density``,
     else unchanged."""
-    cfg = ck.config
-    if cfg.inference.match_training_density and cfg.augment.max_points > 0:
-        return inference_subset(sample, cfg.augment.max_points)[0]
-    return sample
+    n = inference_max_points(ck.config)
+    return inference_subset(sample, n)[0] if n else sample
 
 
 def view_samples(

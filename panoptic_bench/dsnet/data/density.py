@@ -16,6 +16,7 @@ import numpy as np
 __all__ = [
     "DensityMatchedPredictor",
     "density_seed",
+    "inference_max_points",
     "inference_subset",
     "nearest_kept",
     "predict_at_density",
@@ -63,6 +64,16 @@ def thin(sample, max_points: int, rng: np.random.Generator):
 def density_seed(key: tuple[str, ...]) -> list[int]:
     """A stable seed of a scan key (e.g. ``("08", "000123")``) for the inference subset."""
     return [int.from_bytes(part.encode()[:8].ljust(8, b"\0"), "little") for part in key] or [0]
+
+
+def inference_max_points(cfg) -> int:
+    """How many points inference feeds the network under ``cfg`` (a ``DSNetConfig``): the training
+    density ``augment.max_points`` when ``inference.match_training_density`` is set, else 0
+    (every point). The one statement of the density policy, shared by the predictor and by
+    ``checkpoint recalibrate-bn``."""
+    if cfg.inference.match_training_density and cfg.augment.max_points > 0:
+        return int(cfg.augment.max_points)
+    return 0
 
 
 def inference_subset(sample, max_points: int):
@@ -147,6 +158,6 @@ class DensityMatchedPredictor:
 
 def with_density_policy(predictor):
     """``predictor`` itself, or wrapped when its config sets ``inference.match_training_density``."""
-    if predictor.cfg.inference.match_training_density and predictor.cfg.augment.max_points > 0:
+    if inference_max_points(predictor.cfg):
         return DensityMatchedPredictor(predictor)
     return predictor
