@@ -20,6 +20,7 @@ import torch
 from panoptic_bench.cli import main as cli
 from panoptic_bench.dsnet.checkpoint import load_checkpoint
 from panoptic_bench.dsnet.config import DatasetFormat, DSNetConfig, LRSchedule, save_config
+from panoptic_bench.dsnet.training.platform import NUMERIC_KEYS, read_records
 from panoptic_bench.dsnet.training.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -79,6 +80,12 @@ def test_resume_is_bit_for_bit(world: Path, cfg: DSNetConfig, tmp_path: Path):
     assert [{k: v for k, v in r.items() if k not in drop} for r in _rows(straight)] == [
         {k: v for k, v in r.items() if k not in drop} for r in _rows(resumed)
     ]
+    # every call recorded its machine (training/platform.py), the same one each time
+    records = read_records(resumed)
+    assert len(records) == 2
+    assert [{k: r[k] for k in NUMERIC_KEYS} for r in records] == [
+        {k: records[0][k] for k in NUMERIC_KEYS}
+    ] * 2
     # and training did change the weights
     fresh = tmp_path / "zero"
     train(cfg, world, fresh, stage="semantic", epochs=0, progress=False)

@@ -3,20 +3,22 @@
 Layout of a run directory::
 
     RUN_DIR/run.json               method / dataset / data / notes, for the report builder
+    RUN_DIR/platform.json          the machine of every call (training/platform.py)
     RUN_DIR/config.yaml            the typed config actually used
     RUN_DIR/metrics.csv            one row per stage and epoch (train loss, val mIoU / PQ ...)
     RUN_DIR/checkpoints/{semantic,offset,ds}.pt
 
 Each stage starts from the previous stage's checkpoint in the same run directory (or ``init``),
 optimises with Adam and saves a checkpoint after every epoch. ``resume=True`` continues the
-stage from its checkpoint; on CPU with a fixed seed the result is bit-for-bit the same as an
-uninterrupted run (sample order and augmentation derive from ``(seed, epoch, index)``, and the
+stage from its checkpoint; on CPU with a fixed seed, on one kind of machine with one thread count
+(``platform.json``), the result is bit-for-bit the same as an uninterrupted run (sample order and augmentation derive from ``(seed, epoch, index)``, and the
 optimizer and torch RNG state are restored). Launched by ``torchrun``, every process trains on
 its shard of the samples (DDP) and validation accumulators are summed over the processes.
 """
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,6 +54,7 @@ from panoptic_bench.dsnet.training.batchnorm import (
     statistics_noise,
 )
 from panoptic_bench.dsnet.training.metrics_log import write_metrics_csv
+from panoptic_bench.dsnet.training.platform import record_platform
 from panoptic_bench.dsnet.training.resume import check_resumable, checkpoint_path, start_checkpoint
 from panoptic_bench.dsnet.training.steps import (
     class_weights_for,
@@ -131,6 +134,9 @@ def train(
         ctx = _make_context(cfg, Path(data_root), Path(run_dir), info, progress)
         if info.is_main:
             _write_run_files(ctx, data_root, notes)
+            note = record_platform(ctx.run_dir, info.device)
+            if note:
+                print(f"note: {note}", file=sys.stderr)
         out = {}
         for i, st in enumerate(stages):
             out[st] = run_stage(
