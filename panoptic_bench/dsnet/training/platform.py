@@ -1,9 +1,9 @@
-"""The machine a training ran on (``RUN_DIR/platform.json``) and the resume check against it.
+"""The machine a training ran on (``RUN_DIR/platform.json``) and the note when it changes.
 
 A training is bit-for-bit deterministic for a seed only on one kind of machine. torch picks its
 CPU kernels by the processor (``AVX512``, ``AVX2``, ``DEFAULT``), numpy likewise, and the thread
 count changes the order of float sums; a last-bit difference then grows over a training's steps
-like another seed. Measured in session 52 on one root, one seed and the same code: the first
+like another seed. Measured on one root, one seed and the same code (sessions 51-52): the first
 epoch's loss is 2.34152 with torch's AVX-512 kernels, 2.33808 with its AVX2 kernels, 2.35493 with
 its default ones, and 2.3428 with two threads instead of one.
 
@@ -94,9 +94,16 @@ def read_records(run_dir: str | Path) -> list[dict]:
     try:
         records = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read the run's platform records: {exc}", path) from exc
+        raise InputError(
+            f"cannot read the run's platform records ({exc}); delete the file to start them again",
+            path,
+        ) from exc
     if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
-        raise InputError("the run's platform records must be a JSON list of objects", path)
+        raise InputError(
+            "the run's platform records must be a JSON list of objects; delete the file to start "
+            "them again",
+            path,
+        )
     return records
 
 

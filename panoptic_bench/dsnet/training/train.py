@@ -10,9 +10,10 @@ Layout of a run directory::
 
 Each stage starts from the previous stage's checkpoint in the same run directory (or ``init``),
 optimises with Adam and saves a checkpoint after every epoch. ``resume=True`` continues the
-stage from its checkpoint; on CPU with a fixed seed, on one kind of machine with one thread count
-(``platform.json``), the result is bit-for-bit the same as an uninterrupted run (sample order and augmentation derive from ``(seed, epoch, index)``, and the
-optimizer and torch RNG state are restored). Launched by ``torchrun``, every process trains on
+stage from its checkpoint; on CPU with a fixed seed, on one kind of machine with one thread
+count (``platform.json``), the result is bit-for-bit the same as an uninterrupted run (sample
+order and augmentation derive from ``(seed, epoch, index)``, and the optimizer and torch RNG
+state are restored). Launched by ``torchrun``, every process trains on
 its shard of the samples (DDP) and validation accumulators are summed over the processes.
 """
 
