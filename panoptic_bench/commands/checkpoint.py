@@ -15,6 +15,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "import or re-estimate its BatchNorm statistics.",
     )
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    lst = sub.add_parser("list", help="the shipped short names, their files and what they are")
+    lst.set_defaults(func=list_handler)
     show = sub.add_parser("show", help="stage, epoch, class map, metrics and config")
     show.add_argument(
         "checkpoint", help="a .pt file or a shipped short name (e.g. semantickitti-cpu)"
@@ -45,6 +47,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     avg.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     avg.set_defaults(func=average_handler)
+    ens = sub.add_parser(
+        "ensemble",
+        help="write an ensemble file: checkpoints + test-time views, used as one --checkpoint",
+        description="Write a small JSON file naming two or more checkpoints (the first leads: "
+        "dynamic shifting, density and settings) and the test-time views of each; `infer` and "
+        "`demo` take it as --checkpoint and predict as `infer --checkpoint A --ensemble B ... "
+        "--tta-views K` does. The members are checked (same classes, trained offset head) before "
+        "the file is written; their paths are stored relative to the file.",
+    )
+    ens.add_argument("checkpoints", nargs="+", help=".pt files or shipped short names")
+    ens.add_argument("--out", required=True, help="destination .json")
+    ens.add_argument(
+        "--tta-views", type=ca.int_range(1, 16), default=1, help="views per member (default 1)"
+    )
+    ens.add_argument("--notes", default="", help="what the members are (stored in the file)")
+    ens.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    ens.set_defaults(func=ensemble_handler)
     imp = sub.add_parser(
         "import-dsnet",
         help="convert an official DS-Net checkpoint (sem_pretrain / offset_pretrain / dsnet_pretrain)",
@@ -108,6 +127,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     rec.set_defaults(func=recalibrate_handler)
 
 
+def list_handler(args: argparse.Namespace) -> int:
+    from panoptic_bench.demo.steps import TRAINED_ON
+    from panoptic_bench.dsnet.checkpoint import SHIPPED, shipped_checkpoints
+    from panoptic_bench.dsnet.inference.ensemble_file import is_ensemble_file, read_ensemble_file
+
+    present = shipped_checkpoints()
+    for name, file in SHIPPED.items():
+        if name not in present:
+            print(f"{name:28s} {file} (not in this install)")
+            continue
+        what = TRAINED_ON.get(file, "")
+        if is_ensemble_file(present[name]):
+            spec = read_ensemble_file(present[name])
+            files = " + ".join(m.name for m in spec.members)
+            what = f"ensemble of {len(spec.members)} ({files}), {spec.tta_views} views each; {what}"
+        else:
+            what = f"{present[name].stat().st_size / 1e6:.1f} MB; {what}"
+        print(f"{name:28s} {file}: {what}")
+    return 0
+
+
 def show_handler(args: argparse.Namespace) -> int:
     import yaml
 
@@ -159,6 +199,20 @@ def average_handler(args: argparse.Namespace) -> int:
         f"{args.out}: stage {ck.stage}, average of {len(srcs)} checkpoints "
         f"({Path(args.out).stat().st_size / 1e6:.1f} MB)"
     )
+    return 0
+
+
+def ensemble_handler(args: argparse.Namespace) -> int:
+    from panoptic_bench.dsnet.checkpoint import resolve_checkpoint
+    from panoptic_bench.dsnet.inference.ensemble_file import write_ensemble_file
+    from panoptic_bench.dsnet.inference.run import load_predictor
+    from panoptic_bench.io import check_output_file
+
+    srcs = [resolve_checkpoint(c) for c in args.checkpoints]
+    check_output_file(args.out, overwrite=args.overwrite, inputs=tuple(srcs))
+    load_predictor(srcs[0], ensemble=tuple(srcs[1:]))  # the members' checks, before writing
+    spec = write_ensemble_file(args.out, srcs, args.tta_views, args.notes)
+    print(f"{spec.path}: {len(spec.members)} members, {spec.tta_views} view(s) each")
     return 0
 
 

@@ -23,9 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--checkpoint",
         required=True,
-        help="checkpoint written by `train` or `checkpoint import-dsnet`, or a shipped name: "
-        "synthetic, synthetic-backbone, semantickitti-cpu, semantickitti-cpu-backbone, "
-        "semantickitti-cpu-heldout, nuscenes-synthetic",
+        help="checkpoint written by `train` or `checkpoint import-dsnet`, an ensemble file "
+        "(`checkpoint ensemble`: members + views), or a shipped name: synthetic, "
+        "synthetic-buildings, semantickitti-cpu, semantickitti-cpu-heldout, "
+        "nuscenes-synthetic, ... (`checkpoint list`)",
     )
     p.add_argument("--data", required=True, help="dataset root")
     p.add_argument(

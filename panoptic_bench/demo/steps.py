@@ -223,11 +223,16 @@ def training_overlap_note(checkpoint: Path, sequences: Sequence[str]) -> str:
     was trained on: the file does not record the root).
     """
     from panoptic_bench.dsnet.checkpoint import load_checkpoint
+    from panoptic_bench.dsnet.inference.ensemble_file import is_ensemble_file, read_ensemble_file
 
     checkpoint = Path(checkpoint)
     if checkpoint_label(checkpoint).startswith("panoptic_bench/checkpoints/"):
         if checkpoint.name in TRAINED_ON:
             return f"; {TRAINED_ON[checkpoint.name]}"
+    if is_ensemble_file(checkpoint):  # one note per member
+        spec = read_ensemble_file(checkpoint)
+        parts = [training_overlap_note(m, sequences).removeprefix("; ") for m in spec.members]
+        return "; " + " | ".join(f"member {i + 1}: {p or 'no note'}" for i, p in enumerate(parts))
     data = load_checkpoint(checkpoint).config.data
     if data.format.value != "semantickitti":
         return ""

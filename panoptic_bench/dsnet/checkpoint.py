@@ -232,6 +232,10 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         Missing file, not a panoptic-bench DS-Net checkpoint, or an invalid stored config.
     """
     path = Path(path)
+    if path.suffix.lower() == ".json" and path.is_file():
+        raise InputError(
+            "an ensemble file, not one checkpoint: `infer` and `demo` take it as --checkpoint", path
+        )
     if not path.is_file():
         raise InputError("checkpoint not found; train one with `panoptic-bench train`", path)
     try:

@@ -236,6 +236,8 @@ def run_inference(
 ) -> InferenceSummary:
     """Predict ``split`` of ``data_root`` with a checkpoint and write the prediction tree.
 
+    ``checkpoint`` may be an ensemble file (:mod:`~panoptic_bench.dsnet.inference.ensemble_file`):
+    its members and views, with ``ensemble`` appended and ``tta_views`` overriding its views.
     ``command`` (the shell command line, if any) is recorded in ``run.json``.
 
     Returns
@@ -244,6 +246,13 @@ def run_inference(
     """
     from tqdm import tqdm
 
+    from panoptic_bench.dsnet.inference.ensemble_file import is_ensemble_file, read_ensemble_file
+
+    spec = None
+    if is_ensemble_file(checkpoint):  # a fixed ensemble: its first member leads
+        spec = read_ensemble_file(checkpoint)
+        checkpoint, ensemble = spec.members[0], (*spec.members[1:], *ensemble)
+        tta_views = spec.tta_views if tta_views is None else tta_views
     pred, ckpt = load_predictor(
         checkpoint,
         clusterer=clusterer,
@@ -285,6 +294,8 @@ def run_inference(
     meta = _run_meta(method, pred, ckpt, data_root, split, len(times), ms)
     if ensemble:
         meta["notes"] += f"; averaged with {', '.join(map(str, ensemble))} (ensemble)"
+    if spec is not None:
+        meta["notes"] += f"; from the ensemble file {spec.path} ({spec.tta_views} views each)"
     if command:
         meta["command"] = command
     write_run_meta(out, meta)
