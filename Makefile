@@ -29,7 +29,7 @@ bench: $(STAMP)
 
 report: $(STAMP)
 	$(VENV)/bin/panoptic-bench demo --out reports/synthetic --report-only
-	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti-train --checkpoint synthetic-buildings --out reports/real-scans --report-only
+	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti-train --checkpoint synthetic-ensemble --out reports/real-scans --report-only
 	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti --checkpoint synthetic --out reports/real-scans-3 --report-only
 	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti-train --sequences 05,06 --checkpoint semantickitti-cpu-heldout --out reports/real-scans-heldout --report-only
 	$(VENV)/bin/panoptic-bench demo --real-scans ../shared/data/semantickitti-train --checkpoint synthetic --out reports/real-scans-55 --report-only

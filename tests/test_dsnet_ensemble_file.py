@@ -187,3 +187,24 @@ def test_checkpoint_list_names_every_shipped_name(capsys):
     for name, file in SHIPPED.items():
         assert f"{name} " in out and file in out
     assert np.all([line.split()[0] in SHIPPED for line in out.splitlines()])
+
+
+def test_shipped_ensembles_name_shipped_members(world, tmp_path, capsys):
+    from panoptic_bench.demo.steps import TRAINED_ON
+    from panoptic_bench.dsnet.checkpoint import SHIPPED, shipped_checkpoints
+    from panoptic_bench.dsnet.inference.ensemble_file import is_ensemble_file
+
+    shipped = shipped_checkpoints()
+    files = {n: p for n, p in shipped.items() if is_ensemble_file(p)}
+    assert "synthetic-ensemble" in files
+    for path in files.values():
+        spec = read_ensemble_file(path)
+        assert len(spec.members) >= 2 and 1 <= spec.tta_views <= 16
+        for member in spec.members:
+            assert member.parent == path.parent and member.name in SHIPPED.values()
+            assert member.name in TRAINED_ON
+    out = tmp_path / "out"
+    assert _infer(world, out, "--checkpoint", "synthetic-ensemble", "--max-scans", "1") == 0
+    assert "DS-Net (ensemble of 3): 1 scans" in capsys.readouterr().out
+    meta = json.loads((out / "run.json").read_text())
+    assert "from the ensemble file" in meta["notes"] and "(4 views each)" in meta["notes"]

@@ -25,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         required=True,
         help="checkpoint written by `train` or `checkpoint import-dsnet`, an ensemble file "
         "(`checkpoint ensemble`: members + views), or a shipped name: synthetic, "
-        "synthetic-buildings, semantickitti-cpu, semantickitti-cpu-heldout, "
+        "synthetic-buildings, synthetic-ensemble, semantickitti-cpu, semantickitti-cpu-heldout, "
         "nuscenes-synthetic, ... (`checkpoint list`)",
     )
     p.add_argument("--data", required=True, help="dataset root")

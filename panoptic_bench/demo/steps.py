@@ -201,6 +201,18 @@ TRAINED_ON = {
         "trained on the synthetic worlds only (as dsnet_synthetic_sign_boards.pt, with twice the"
         " building frontages)"
     ),
+    "dsnet_synthetic_buildings_start2.pt": (
+        "trained on the synthetic worlds only (as dsnet_synthetic_buildings.pt, fine-tuned from a"
+        " second draw of its start, seed 1)"
+    ),
+    "dsnet_synthetic_buildings_start3.pt": (
+        "trained on the synthetic worlds only (as dsnet_synthetic_buildings.pt, fine-tuned from a"
+        " third draw of its start, seed 2)"
+    ),
+    "ensemble_synthetic.json": (
+        "three networks trained on the synthetic worlds only (dsnet_synthetic_buildings.pt and its"
+        " fine-tunes from two more draws of its start), four test-time views each"
+    ),
     "dsnet_nuscenes_synthetic.pt": "trained on a synthetic nuScenes world (seed 1000) only",
     "dsnet_semantickitti_cpu.pt": (
         "trained on real scans of sequences 00-07, 09, 10 + rare instances pasted from synthetic streets"

@@ -50,7 +50,8 @@ __all__ = [
 ]
 
 
-#: Short name -> file in ``panoptic_bench/checkpoints/`` of every checkpoint a release may ship.
+#: Short name -> file in ``panoptic_bench/checkpoints/`` of every checkpoint a release may ship
+#: (``.json``: an ensemble file, :mod:`panoptic_bench.dsnet.inference.ensemble_file`).
 SHIPPED: dict[str, str] = {
     "synthetic": "dsnet_synthetic.pt",
     "synthetic-backbone": "backbone_synthetic.pt",
@@ -65,6 +66,9 @@ SHIPPED: dict[str, str] = {
     "synthetic-held-bn": "dsnet_synthetic_held_bn.pt",
     "synthetic-sign-boards": "dsnet_synthetic_sign_boards.pt",
     "synthetic-buildings": "dsnet_synthetic_buildings.pt",
+    "synthetic-buildings-start2": "dsnet_synthetic_buildings_start2.pt",
+    "synthetic-buildings-start3": "dsnet_synthetic_buildings_start3.pt",
+    "synthetic-ensemble": "ensemble_synthetic.json",
     "semantickitti-cpu": "dsnet_semantickitti_cpu.pt",
     "semantickitti-cpu-backbone": "backbone_semantickitti_cpu.pt",
     "semantickitti-cpu-heldout": "dsnet_semantickitti_cpu_heldout0506.pt",
