@@ -103,6 +103,22 @@ def read_ensemble_file(path: str | Path) -> EnsembleFile:
     return EnsembleFile(path, resolved, views, notes)
 
 
+def expand_ensemble_file(
+    checkpoint: str | Path, ensemble: Sequence[str | Path], tta_views: int | None
+) -> tuple[str | Path, tuple[str | Path, ...], int | None, EnsembleFile | None]:
+    """``(checkpoint, ensemble, tta_views, file)`` with an ensemble file replaced by its contents.
+
+    For a ``.pt`` checkpoint the arguments come back unchanged (``file`` None); for an ensemble
+    file, its first member, the other members followed by ``ensemble``, and ``tta_views`` if given
+    (else the file's views).
+    """
+    if not is_ensemble_file(checkpoint):
+        return checkpoint, tuple(ensemble), tta_views, None
+    spec = read_ensemble_file(checkpoint)
+    views = spec.tta_views if tta_views is None else tta_views
+    return spec.members[0], (*spec.members[1:], *ensemble), views, spec
+
+
 def write_ensemble_file(
     path: str | Path, members: Sequence[str | Path], tta_views: int = 1, notes: str = ""
 ) -> EnsembleFile:

@@ -246,13 +246,9 @@ def run_inference(
     """
     from tqdm import tqdm
 
-    from panoptic_bench.dsnet.inference.ensemble_file import is_ensemble_file, read_ensemble_file
+    from panoptic_bench.dsnet.inference.ensemble_file import expand_ensemble_file
 
-    spec = None
-    if is_ensemble_file(checkpoint):  # a fixed ensemble: its first member leads
-        spec = read_ensemble_file(checkpoint)
-        checkpoint, ensemble = spec.members[0], (*spec.members[1:], *ensemble)
-        tta_views = spec.tta_views if tta_views is None else tta_views
+    checkpoint, ensemble, tta_views, spec = expand_ensemble_file(checkpoint, ensemble, tta_views)
     pred, ckpt = load_predictor(
         checkpoint,
         clusterer=clusterer,
